@@ -1,0 +1,183 @@
+"""Kinematic models of the dissertation's robots (Chapter 3).
+
+- Omnidirectional robot (3.1) with three Swedish wheels and the wheel map (3.2);
+  body velocities (u, v, omega), wheel rim speeds limited by qdot_max.
+- Unicycle (3.3) with (v, omega) limits and the curvature-preserving velocity
+  scaling of SPEC section 1.3.
+
+Commands are body-frame velocities: omni ``(u, v, omega)``, unicycle ``(v, omega)``.
+Poses are ``(x, y, theta)`` in the world frame.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = [
+    "OmniModel",
+    "UnicycleModel",
+    "integrate_body_velocity",
+    "wheel_matrix",
+    "rotation_speed_limit",
+    "scale_velocities",
+    "make_model",
+]
+
+DELTA_WHEEL = math.pi / 6
+"""Wheel mounting angle delta of (3.2) [rad]."""
+
+
+def wheel_matrix(delta: float = DELTA_WHEEL, L_w: float = 0.195) -> np.ndarray:
+    """Body-frame wheel map M of (3.2): qdot = M @ [u, v, omega] (rim speeds, m/s)."""
+    c, s = math.cos(delta), math.sin(delta)
+    return np.array([[c, s, L_w], [-c, s, L_w], [0.0, -1.0, L_w]])
+
+
+def rotation_speed_limit(omega, qdot_max: float = 1.9, L_w: float = 0.195):
+    """Translational speed bound r(omega) of (4.17)-(4.18): qdot_max - L_w |omega|.
+
+    (4.18) prints r = (9.7436 - |omega|) / 5.1283, which is the same line since
+    9.7436 = qdot_max / L_w and 5.1283 = 1 / L_w (SPEC 1.2, derived).
+    """
+    return np.maximum(0.0, qdot_max - L_w * np.abs(omega))
+
+
+def integrate_body_velocity(pose, body_vel, dt: float) -> np.ndarray:
+    """Exact pose after holding body velocities (u, v, omega) constant for dt.
+
+    Integrates (3.1) in closed form (the unicycle is the case v = 0).
+    """
+    x, y, th = (float(p) for p in pose)
+    u, v, w = (float(c) for c in body_vel)
+    a = w * dt
+    if abs(a) < 1e-9:
+        dx_b, dy_b = u * dt, v * dt
+    else:
+        sa, ca = math.sin(a), math.cos(a)
+        dx_b = (u * sa + v * (ca - 1.0)) / w
+        dy_b = (u * (1.0 - ca) + v * sa) / w
+    c, s = math.cos(th), math.sin(th)
+    return np.array([x + c * dx_b - s * dy_b, y + s * dx_b + c * dy_b, th + a])
+
+
+@dataclass(frozen=True)
+class OmniModel:
+    """Three-wheeled omnidirectional robot, (3.1)-(3.2)."""
+
+    L_w: float = 0.195
+    """Wheel distance from the centre [m]."""
+    qdot_max: float = 1.9
+    """Wheel rim-speed limit [m/s]."""
+    delta: float = DELTA_WHEEL
+    """Wheel mounting angle [rad]."""
+    radius: float = 0.2
+    """Footprint radius for collision checks [m] (chosen)."""
+
+    kind = "omni"
+    command_size = 3
+
+    def __post_init__(self) -> None:
+        for name in ("L_w", "qdot_max", "radius"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"omni model {name} must be > 0, got {getattr(self, name)!r}")
+
+    @property
+    def M(self) -> np.ndarray:
+        return wheel_matrix(self.delta, self.L_w)
+
+    def wheel_speeds(self, cmd) -> np.ndarray:
+        """Wheel rim speeds (3,) for body velocities (u, v, omega), (3.2)."""
+        return self.M @ np.asarray(cmd, dtype=float).reshape(3)
+
+    def world_wheel_matrix(self, theta: float) -> np.ndarray:
+        """J(theta) with qdot = J(theta) [xdot, ydot, omega] (SPEC 1.2, rows of (4.11))."""
+        d = self.delta
+        return np.array(
+            [
+                [math.cos(theta + d), math.sin(theta + d), self.L_w],
+                [-math.cos(theta - d), -math.sin(theta - d), self.L_w],
+                [math.sin(theta), -math.cos(theta), self.L_w],
+            ]
+        )
+
+    def saturate(self, cmd) -> tuple[np.ndarray, bool]:
+        """Scale a command so every wheel speed is within qdot_max.
+
+        Returns the applied command and whether the request violated the limit
+        (beyond a 1e-6 relative tolerance).
+        """
+        cmd = np.asarray(cmd, dtype=float).reshape(3)
+        peak = float(np.max(np.abs(self.wheel_speeds(cmd))))
+        if peak <= self.qdot_max * (1 + 1e-6):
+            return cmd, False
+        return cmd * (self.qdot_max / peak), True
+
+    def step(self, pose, cmd, dt: float) -> np.ndarray:
+        return integrate_body_velocity(pose, cmd, dt)
+
+
+def scale_velocities(v: float, omega: float, v_max: float, omega_max: float) -> tuple[float, float]:
+    """Curvature-preserving scaling (SPEC 1.3): divide (v, omega) by
+    sigma = max(1, |v|/v_max, |omega|/omega_max)."""
+    sigma = max(1.0, abs(v) / v_max, abs(omega) / omega_max)
+    return v / sigma, omega / sigma
+
+
+@dataclass(frozen=True)
+class UnicycleModel:
+    """Differential-drive robot (3.3): xdot = v cos theta, ydot = v sin theta, thetadot = omega."""
+
+    v_max: float = 0.5
+    """Forward speed limit |v| [m/s]."""
+    omega_max: float = 1.0
+    """Yaw-rate limit |omega| [rad/s]."""
+    b: float = 0.05
+    """Half axle: centre to wheel distance [m] (chosen; the text gives only the 12 cm body)."""
+    radius: float = 0.06
+    """Footprint radius for collision checks [m] (c't-Bot, 12 cm diameter)."""
+
+    kind = "unicycle"
+    command_size = 2
+
+    def __post_init__(self) -> None:
+        for name in ("v_max", "omega_max", "b", "radius"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"unicycle model {name} must be > 0, got {getattr(self, name)!r}")
+
+    def wheel_speeds(self, cmd) -> np.ndarray:
+        """(v_r, v_l) = (v + b omega, v - b omega) of (3.3)."""
+        v, w = (float(c) for c in np.asarray(cmd).reshape(2))
+        return np.array([v + self.b * w, v - self.b * w])
+
+    def saturate(self, cmd) -> tuple[np.ndarray, bool]:
+        """Clip (v, omega) to the limits with the curvature-preserving scaling."""
+        v, w = (float(c) for c in np.asarray(cmd, dtype=float).reshape(2))
+        tol = 1e-6
+        violated = abs(v) > self.v_max * (1 + tol) or abs(w) > self.omega_max * (1 + tol)
+        return np.array(scale_velocities(v, w, self.v_max, self.omega_max)), violated
+
+    def step(self, pose, cmd, dt: float) -> np.ndarray:
+        v, w = (float(c) for c in np.asarray(cmd).reshape(2))
+        return integrate_body_velocity(pose, (v, 0.0, w), dt)
+
+
+MODEL_TYPES = {"omni": OmniModel, "unicycle": UnicycleModel}
+
+
+def make_model(spec: dict | str) -> OmniModel | UnicycleModel:
+    """Build a model from ``"omni"`` or a table ``{type = "unicycle", v_max = 0.5}``."""
+    if isinstance(spec, str):
+        spec = {"type": spec}
+    kind = spec.get("type")
+    if kind not in MODEL_TYPES:
+        raise ValueError(f"model type = {kind!r} is not allowed; choose one of {sorted(MODEL_TYPES)}")
+    cls = MODEL_TYPES[kind]
+    allowed = set(cls.__dataclass_fields__)
+    kwargs = {k: v for k, v in spec.items() if k != "type"}
+    for k, v in kwargs.items():
+        if k not in allowed:
+            raise ValueError(f"model key {k!r} (= {v!r}) is not allowed for {kind!r}; allowed: {sorted(allowed)}")
+    return cls(**{k: float(v) for k, v in kwargs.items()})

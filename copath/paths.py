@@ -1,0 +1,412 @@
+"""Reference paths re-parameterised by arc length (SPEC section 0, "Path object").
+
+Every reference curve of the dissertation is "numerically parameterized by the path
+length s". A :class:`Path` wraps a parametric curve r(phi) and exposes, for any arc
+length s (scalars or arrays, vectorised):
+
+- ``pos(s)``: (..., 2) position,
+- ``theta(s)``: tangent angle, continuous along s (unwrapped, also across laps),
+- ``kappa(s)``: signed curvature, positive for a left (CCW) turn,
+- ``dkappa(s)``: d kappa / d s,
+- ``length``, ``closed``, ``wrap(s)`` and ``nearest(p, s_guess)``.
+
+Position, tangent and curvature are evaluated from the parametric curve itself at
+phi(s), so only the map s -> phi is tabulated; geometry is exact up to that map.
+Open paths are extended beyond their ends along the end tangents (straight lines,
+zero curvature), so a robot that overshoots still has a well-defined reference.
+
+Curves: the eight curve (4.14), the lemniscate (5.9), ellipse/circle (5.30)-(5.32)
+with rotation and centre, sinusoid, straight line, and a C2 cubic spline through
+user waypoints (E6.6).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+__all__ = [
+    "Path",
+    "eight_curve",
+    "lemniscate",
+    "ellipse",
+    "circle",
+    "sinusoid",
+    "line",
+    "spline",
+    "make_path",
+    "PATH_TYPES",
+    "wrap_to_pi",
+]
+
+
+def wrap_to_pi(a):
+    """Wrap angles to (-pi, pi] with atan2(sin, cos) (SPEC section 0)."""
+    a = np.asarray(a, dtype=float)
+    out = np.arctan2(np.sin(a), np.cos(a))
+    return float(out) if out.ndim == 0 else out
+
+
+CurveFn = Callable[[np.ndarray], np.ndarray]
+
+
+@dataclass(frozen=True)
+class _Curve:
+    """A parametric curve r(phi) on [phi0, phi1]; r maps (n,) -> (n, 2)."""
+
+    r: CurveFn
+    phi0: float
+    phi1: float
+    closed: bool
+    name: str
+
+
+def _rotate_translate(xy: np.ndarray, rotation: float, center) -> np.ndarray:
+    c, s = math.cos(rotation), math.sin(rotation)
+    x, y = xy[..., 0], xy[..., 1]
+    return np.stack([c * x - s * y + center[0], s * x + c * y + center[1]], axis=-1)
+
+
+class Path:
+    """An arc-length parameterised path built from a parametric curve.
+
+    Parameters
+    ----------
+    curve : _Curve
+        The parametric curve.
+    samples : int
+        Number of samples of the s -> phi table (default 20001).
+    """
+
+    def __init__(self, curve: _Curve, samples: int = 20001) -> None:
+        self.name = curve.name
+        self.closed = curve.closed
+        self._r = curve.r
+        phi = np.linspace(curve.phi0, curve.phi1, samples)
+        self._h = 1e-4 * max(1.0, abs(curve.phi1 - curve.phi0) / (2 * math.pi))
+        d1 = self._d1(phi)
+        speed = np.hypot(d1[:, 0], d1[:, 1])
+        if np.any(speed < 1e-9):
+            raise ValueError(f"path {curve.name!r} has a singular point (zero speed)")
+        # Cumulative arc length by the trapezoid rule on a fine grid, refined once
+        # with Simpson on midpoints for accuracy (|error| ~ 1e-10 m here).
+        mid = 0.5 * (phi[1:] + phi[:-1])
+        dm = self._d1(mid)
+        sm = np.hypot(dm[:, 0], dm[:, 1])
+        seg = (phi[1:] - phi[:-1]) * (speed[1:] + 4 * sm + speed[:-1]) / 6.0
+        s = np.concatenate([[0.0], np.cumsum(seg)])
+        self.length = float(s[-1])
+        self._s_tab = s
+        self._phi_tab = phi
+        th = np.arctan2(d1[:, 1], d1[:, 0])
+        self._theta_tab = np.unwrap(th)
+        self.winding = (
+            round((self._theta_tab[-1] - self._theta_tab[0]) / (2 * math.pi)) if self.closed else 0
+        )
+        k = self._kappa_phi(phi)
+        self._kappa_tab = k
+        self._dkappa_tab = np.gradient(k, s)
+        p0 = self._r(np.array([curve.phi0]))[0]
+        p1 = self._r(np.array([curve.phi1]))[0]
+        if self.closed and np.hypot(*(p1 - p0)) > 1e-6 * max(1.0, self.length):
+            raise ValueError(f"path {curve.name!r} is declared closed but its ends differ")
+        self._start = p0
+        self._end = p1
+        self._cas = None
+
+    # -- derivatives of the parametric curve (5-point stencils) -------------------
+    def _d1(self, phi: np.ndarray) -> np.ndarray:
+        h = self._h
+        r = self._r
+        return (-r(phi + 2 * h) + 8 * r(phi + h) - 8 * r(phi - h) + r(phi - 2 * h)) / (12 * h)
+
+    def _d2(self, phi: np.ndarray) -> np.ndarray:
+        h = self._h * 10
+        r = self._r
+        return (
+            -r(phi + 2 * h) + 16 * r(phi + h) - 30 * r(phi) + 16 * r(phi - h) - r(phi - 2 * h)
+        ) / (12 * h * h)
+
+    def _kappa_phi(self, phi: np.ndarray) -> np.ndarray:
+        d1 = self._d1(phi)
+        d2 = self._d2(phi)
+        num = d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0]
+        return num / np.hypot(d1[:, 0], d1[:, 1]) ** 3
+
+    # -- arc length handling --------------------------------------------------------
+    def wrap(self, s):
+        """Map s into [0, length) for closed paths; identity for open paths."""
+        s = np.asarray(s, dtype=float)
+        out = np.mod(s, self.length) if self.closed else s
+        return float(out) if out.ndim == 0 else out
+
+    def _split(self, s):
+        s = np.atleast_1d(np.asarray(s, dtype=float))
+        if self.closed:
+            laps = np.floor(s / self.length)
+            return s - laps * self.length, laps, np.zeros_like(s)
+        inside = np.clip(s, 0.0, self.length)
+        return inside, np.zeros_like(s), s - inside
+
+    def _phi(self, s_in: np.ndarray) -> np.ndarray:
+        return np.interp(s_in, self._s_tab, self._phi_tab)
+
+    @staticmethod
+    def _out(x, scalar):
+        return x[0] if scalar else x
+
+    def pos(self, s) -> np.ndarray:
+        """Position (..., 2) at arc length s."""
+        scalar = np.ndim(s) == 0
+        s_in, _, extra = self._split(s)
+        p = self._r(self._phi(s_in))
+        if np.any(extra != 0.0):
+            th = self._theta_raw(s_in)
+            p = p + extra[:, None] * np.stack([np.cos(th), np.sin(th)], axis=-1)
+        return self._out(p, scalar)
+
+    def _theta_raw(self, s_in: np.ndarray) -> np.ndarray:
+        d1 = self._d1(self._phi(s_in))
+        raw = np.arctan2(d1[:, 1], d1[:, 0])
+        ref = np.interp(s_in, self._s_tab, self._theta_tab)
+        return raw + 2 * math.pi * np.round((ref - raw) / (2 * math.pi))
+
+    def theta(self, s):
+        """Tangent angle at s, continuous in s (for closed paths also across laps)."""
+        scalar = np.ndim(s) == 0
+        s_in, laps, _ = self._split(s)
+        th = self._theta_raw(s_in) + 2 * math.pi * self.winding * laps
+        return float(th[0]) if scalar else th
+
+    def kappa(self, s):
+        """Signed curvature at s (Eq. in SPEC section 0); zero beyond open ends."""
+        scalar = np.ndim(s) == 0
+        s_in, _, extra = self._split(s)
+        k = self._kappa_phi(self._phi(s_in))
+        k = np.where(extra != 0.0, 0.0, k)
+        return float(k[0]) if scalar else k
+
+    def dkappa(self, s):
+        """d kappa / d s at s (tabulated by finite differences)."""
+        scalar = np.ndim(s) == 0
+        s_in, _, extra = self._split(s)
+        dk = np.interp(s_in, self._s_tab, self._dkappa_tab)
+        dk = np.where(extra != 0.0, 0.0, dk)
+        return float(dk[0]) if scalar else dk
+
+    def frame(self, s):
+        """(x, y, theta, kappa) at s, each shaped like s."""
+        p = np.atleast_2d(self.pos(np.atleast_1d(s)))
+        th = np.atleast_1d(self.theta(np.atleast_1d(s)))
+        k = np.atleast_1d(self.kappa(np.atleast_1d(s)))
+        if np.ndim(s) == 0:
+            return float(p[0, 0]), float(p[0, 1]), float(th[0]), float(k[0])
+        return p[:, 0], p[:, 1], th, k
+
+    def normal(self, s) -> np.ndarray:
+        """Left unit normal n = (-sin theta, cos theta) at s."""
+        th = np.asarray(self.theta(s))
+        return np.stack([-np.sin(th), np.cos(th)], axis=-1)
+
+    def nearest(self, p, s_guess: float, window: float = 1.0, resolution: float = 0.005) -> float:
+        """Arc length of the path point nearest to p, searched in s_guess +- window.
+
+        The search samples the window and refines with Newton steps on the
+        orthogonality condition (p - r(s)) . t(s) = 0, so the cost is independent
+        of the path length. The returned s is not wrapped (it stays near s_guess).
+        """
+        p = np.asarray(p, dtype=float).reshape(2)
+        n = max(3, int(2 * window / resolution) + 1)
+        cand = np.linspace(s_guess - window, s_guess + window, n)
+        if not self.closed:
+            cand = np.clip(cand, -window, self.length + window)
+        d = self.pos(cand) - p
+        s = float(cand[np.argmin(np.einsum("ij,ij->i", d, d))])
+        for _ in range(4):
+            th = self.theta(s)
+            t = np.array([math.cos(th), math.sin(th)])
+            e = p - self.pos(s)
+            f = float(e @ t)
+            k = self.kappa(s)
+            # derivative of f w.r.t. s: -1 + kappa * (e . n)
+            df = -1.0 + k * float(e @ np.array([-t[1], t[0]]))
+            if abs(df) < 1e-9:
+                break
+            step = -f / df
+            step = max(-resolution, min(resolution, step))
+            s += step
+            if abs(step) < 1e-10:
+                break
+        return s
+
+    # -- CasADi -------------------------------------------------------------------
+    def casadi(self, grid_step: float = 0.01):
+        """CasADi functions ``x, y, theta, kappa`` of a (symbolic) arc length.
+
+        Built once per path (B-spline interpolants on a grid of ``grid_step``), and
+        evaluated at ``fmod(s, length)`` for closed paths so s may be a symbolic
+        state that grows without bound (SPEC section 0). ``theta`` is continuous
+        within one lap; wrap angle differences with atan2(sin, cos).
+        """
+        if self._cas is not None:
+            return self._cas
+        import casadi as ca
+
+        n = max(50, int(math.ceil(self.length / grid_step)) + 1)
+        if self.closed:
+            grid = np.linspace(0.0, self.length, n)
+        else:  # include straight extensions of one path length at both ends
+            grid = np.linspace(-self.length, 2 * self.length, 3 * n)
+        x, y, th, k = self.frame(grid)
+        fx = ca.interpolant(f"{self.name}_x", "bspline", [grid], x)
+        fy = ca.interpolant(f"{self.name}_y", "bspline", [grid], y)
+        fth = ca.interpolant(f"{self.name}_theta", "bspline", [grid], th)
+        fk = ca.interpolant(f"{self.name}_kappa", "bspline", [grid], k)
+        s = ca.MX.sym("s")
+        sw = ca.fmod(ca.fmod(s, self.length) + self.length, self.length) if self.closed else s
+        lap = (s - sw) / self.length if self.closed else 0
+        self._cas = {
+            "x": ca.Function("path_x", [s], [fx(sw)]),
+            "y": ca.Function("path_y", [s], [fy(sw)]),
+            "theta": ca.Function("path_theta", [s], [fth(sw) + 2 * math.pi * self.winding * lap]),
+            "kappa": ca.Function("path_kappa", [s], [fk(sw)]),
+        }
+        return self._cas
+
+    def __repr__(self) -> str:
+        kind = "closed" if self.closed else "open"
+        return f"Path({self.name!r}, {kind}, length={self.length:.4f} m)"
+
+
+# -- curve constructors ------------------------------------------------------------
+
+
+def eight_curve(ax: float = 1.8, ay: float = 1.2, rotation: float = 0.0, center=(0.0, 0.0)) -> Path:
+    """Eight curve (4.14): x = ax sin(t), y = ay sin(2t) (the (0.4 phi, 0.8 phi) of the
+    text traces the same geometry). Length 12.86 m for the published (1.8, 1.2)."""
+
+    def r(t):
+        return _rotate_translate(np.stack([ax * np.sin(t), ay * np.sin(2 * t)], -1), rotation, center)
+
+    return Path(_Curve(r, 0.0, 2 * math.pi, True, "eight"))
+
+
+def lemniscate(a: float = 2.3, rotation: float = 0.0, center=(0.0, 0.0)) -> Path:
+    """Lemniscate of Bernoulli (5.9): x = a cos t / (1 + sin^2 t), y = a sin t cos t / (1 + sin^2 t)."""
+
+    def r(t):
+        d = 1.0 + np.sin(t) ** 2
+        xy = np.stack([a * np.cos(t) / d, a * np.sin(t) * np.cos(t) / d], -1)
+        return _rotate_translate(xy, rotation, center)
+
+    return Path(_Curve(r, 0.0, 2 * math.pi, True, "lemniscate"))
+
+
+def ellipse(a: float, b: float, rotation: float = 0.0, center=(0.0, 0.0), phase: float = 0.0) -> Path:
+    """Ellipse x = a cos t, y = b sin t, rotated by ``rotation`` about the origin and
+    moved to ``center`` (5.30)-(5.31); s = 0 at t = ``phase``; counter-clockwise."""
+
+    def r(t):
+        return _rotate_translate(np.stack([a * np.cos(t), b * np.sin(t)], -1), rotation, center)
+
+    return Path(_Curve(r, phase, phase + 2 * math.pi, True, "ellipse"))
+
+
+def circle(radius: float, rotation: float = 0.0, center=(0.0, 0.0), phase: float = 0.0) -> Path:
+    """Circle of ``radius`` (counter-clockwise), e.g. the E4.4 reference and (5.32)."""
+    p = ellipse(radius, radius, rotation, center, phase)
+    p.name = "circle"
+    return p
+
+
+def sinusoid(
+    amplitude: float, wavelength: float, length: float, rotation: float = 0.0, origin=(0.0, 0.0)
+) -> Path:
+    """Open sinusoid y = A sin(2 pi x / wavelength) for x in [0, length] (E5.6, chosen)."""
+    w = 2 * math.pi / wavelength
+
+    def r(t):
+        return _rotate_translate(np.stack([t, amplitude * np.sin(w * t)], -1), rotation, origin)
+
+    return Path(_Curve(r, 0.0, length, False, "sinusoid"))
+
+
+def line(start=(0.0, 0.0), heading: float = 0.0, length: float = 10.0) -> Path:
+    """Straight segment from ``start`` along ``heading`` [rad] of ``length`` [m]."""
+    c, s = math.cos(heading), math.sin(heading)
+
+    def r(t):
+        return np.stack([start[0] + c * t, start[1] + s * t], -1)
+
+    return Path(_Curve(r, 0.0, length, False, "line"))
+
+
+def spline(waypoints, closed: bool = False) -> Path:
+    """C2 cubic spline through waypoints (chord-length parameter); periodic if closed."""
+    from scipy.interpolate import CubicSpline
+
+    pts = np.asarray(waypoints, dtype=float)
+    if pts.ndim != 2 or pts.shape[1] != 2 or len(pts) < 3:
+        raise ValueError(f"waypoints must be a list of at least 3 [x, y] pairs, got shape {pts.shape}")
+    if closed and np.hypot(*(pts[-1] - pts[0])) > 1e-9:
+        pts = np.vstack([pts, pts[:1]])
+    chord = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(pts, axis=0).T))])
+    if np.any(np.diff(chord) <= 0):
+        raise ValueError("waypoints must not repeat consecutively")
+    cs = CubicSpline(chord, pts, bc_type="periodic" if closed else "natural")
+    t1 = float(chord[-1])
+
+    if closed:
+
+        def r(t):
+            return cs(np.mod(t, t1))
+
+    else:
+
+        def r(t):
+            return cs(t)  # cubic extrapolation only within the finite-difference stencil
+
+    return Path(_Curve(r, 0.0, t1, closed, "spline"))
+
+
+PATH_TYPES: dict[str, Callable[..., Path]] = {
+    "eight": eight_curve,
+    "lemniscate": lemniscate,
+    "ellipse": ellipse,
+    "circle": circle,
+    "sinusoid": sinusoid,
+    "line": line,
+    "spline": spline,
+}
+
+
+def make_path(spec: dict) -> Path:
+    """Build a path from a scenario table such as ``{type = "ellipse", a = 1.5, b = 1.0}``.
+
+    Raises ValueError naming the key, the value and what is allowed.
+    """
+    import inspect
+
+    if not isinstance(spec, dict):
+        raise ValueError(f"a path must be a table, got {spec!r}")
+    kind = spec.get("type")
+    if kind not in PATH_TYPES:
+        raise ValueError(f"path type = {kind!r} is not allowed; choose one of {sorted(PATH_TYPES)}")
+    fn = PATH_TYPES[kind]
+    params = inspect.signature(fn).parameters
+    kwargs = {k: v for k, v in spec.items() if k != "type"}
+    for k in kwargs:
+        if k not in params:
+            raise ValueError(
+                f"path key {k!r} (= {kwargs[k]!r}) is not allowed for type {kind!r}; allowed: {sorted(params)}"
+            )
+    missing = [p.name for p in params.values() if p.default is inspect.Parameter.empty and p.name not in kwargs]
+    if missing:
+        raise ValueError(f"path of type {kind!r} needs keys {missing}")
+    try:
+        return fn(**kwargs)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"path {spec!r}: {exc}") from exc

@@ -1,0 +1,27 @@
+"""Payload schemas of robot-to-robot messages, keyed by message kind.
+
+Each entry maps a field name to its type: ``float``, ``int``, ``bool``, ``str``,
+``floats`` (list of numbers), ``ints``, ``points`` (list of [x, y]) or ``any``. A name
+ending in ``?`` is optional. Receivers validate every payload against this table
+(``copath.wire.messages.validate_payload``) and count what they reject; bump
+``PAYLOAD_VERSION`` when a field changes meaning.
+"""
+
+from __future__ import annotations
+
+PAYLOAD_VERSION = 1
+
+PAYLOADS: dict[str, dict[str, str]] = {
+    # Sec. 5.5: path coordinate and virtual-vehicle speed, (5.42); receivers
+    # extrapolate s by sdot times the message age.
+    "coord_state": {"s": "float", "sdot": "float"},
+    # Sec. 5.3: leader broadcast after each solve.
+    "leader_plan": {"s_l": "float", "sdot_pred": "floats", "delta_l": "float", "slowdown?": "float"},
+    # Sec. 5.3 extension (formation feedback): follower -> leader tracking error.
+    "follower_status": {"tracking_error": "float"},
+    # Sec. 5.4, Algorithm 5.1: assumed trajectory s_hat on the grid t0 + k dt.
+    "assumed_traj": {"t0": "float", "dt": "float", "s_hat": "floats", "psi_scale?": "float"},
+    # Sec. 5.5.5: leader -> follower velocity command; follower -> leader report.
+    "hetero_cmd": {"v": "float", "omega": "float"},
+    "hetero_report": {"heading": "float"},
+}

@@ -16,6 +16,8 @@ floats, or None) recorded every step and used by ``orchestrator/metrics.py``:
 ``s``, ``sdot``        path coordinate and virtual-vehicle speed.
 ``xi``                 coordination coordinate: robots are coordinated when all xi are
                        equal (e.g. s_i - s_di, or progress in base-path coordinates).
+``xi_period``          period of xi (the shared closed path's length) or 0: differences
+                       of xi are compared modulo this period.
 ``speed_error``        virtual-vehicle speed error (sdot - v_d) [m/s].
 ``solver_ok``          False when the solve failed and a fallback command was used.
 ``formation_error``    distance to the formation slot where a formation is defined.

@@ -13,8 +13,9 @@ PAYLOAD_VERSION = 1
 
 PAYLOADS: dict[str, dict[str, str]] = {
     # Sec. 5.5: path coordinate and virtual-vehicle speed, (5.42); receivers
-    # extrapolate s by sdot times the message age.
-    "coord_state": {"s": "float", "sdot": "float"},
+    # extrapolate s by sdot times the message age; s_d is the sender's desired
+    # offset, so s_dij = s_di - s_dj needs no global table.
+    "coord_state": {"s": "float", "sdot": "float", "s_d": "float"},
     # Sec. 5.3: leader broadcast after each solve.
     "leader_plan": {"s_l": "float", "sdot_pred": "floats", "delta_l": "float", "slowdown?": "float"},
     # Sec. 5.3 extension (formation feedback): follower -> leader tracking error.

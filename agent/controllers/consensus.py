@@ -1,0 +1,238 @@
+"""Lyapunov path following + second-order consensus for unicycles (Sec. 5.5, (5.33)-(5.46)).
+
+Each robot follows its own path Gamma_i parameterised by arc length s_i. Its virtual
+vehicle's path coordinate obeys the second-order consensus (5.42), which tracks the
+common group speed v_0 and drives s_i - s_j to s_dij = s_di - s_dj over an undirected
+connected graph (Theorem 8). The unicycle tracks the virtual vehicle with (5.39)-(5.40)
+and the transient heading shaping delta(y_e) of [211].
+
+The reusable pieces (errors (5.33), the tracking law (5.39)-(5.40) with the closed-form
+delta-dot of SPEC 2(f) note 1, the consensus acceleration (5.42)) are module functions so
+other controllers (heterogeneous team, formation switching) call them instead of
+copying them.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Mapping, Sequence
+
+import numpy as np
+
+from copath.config import from_table, require
+from copath.paths import Path, wrap_to_pi
+
+from .base import Observation, Outgoing, PeerMessage, RobotContext, StepResult
+
+__all__ = [
+    "ConsensusConfig",
+    "ConsensusController",
+    "NeighbourState",
+    "tracking_errors",
+    "tracking_law",
+    "consensus_acceleration",
+    "project_onto_path",
+    "build",
+]
+
+
+@dataclass(frozen=True)
+class ConsensusConfig:
+    """Gains and references of Sec. 5.5 (published values of E5.4 as defaults)."""
+
+    v0: float = 0.2
+    """Group speed v_0 = v_di for every robot [m/s] (5.35)."""
+    k1: float = 5.0
+    """Heading weight 1/k1 in V (5.36) and k1 in (5.40)."""
+    k2: float = 0.5
+    """Coordination (position) consensus gain of (5.42)."""
+    k3: float = 0.2
+    """Speed consensus gain of (5.42)."""
+    k4: float = 0.25
+    """Along-track gain of (5.39)."""
+    k5: float = 1.0
+    """Heading gain of (5.40)."""
+    k6: float = 0.2
+    """Speed-tracking gain of (5.42)."""
+    theta_a: float = math.pi / 4
+    """Transient heading amplitude theta_a of delta(y_e) [rad]."""
+    s_d: float = 0.0
+    """This robot's desired coordination offset s_di [m]; s_dij = s_di - s_dj."""
+    sdot_max: float = 0.5
+    """Upper bound of the virtual-vehicle speed [m/s] (chosen: the unicycle's v_max)."""
+    s0: float | None = None
+    """Initial path coordinate [m]; default: projection of the first pose onto the path."""
+    extrapolate: bool = True
+    """Compensate neighbour messages for their age: s_j + sdot_j * age (SPEC 2(f) note 4)."""
+    stale_after_s: float = 2.0
+    """Neighbour information older than this is ignored [s]."""
+
+    def __post_init__(self) -> None:
+        for k in ("k1", "k2", "k3", "k4", "k5", "k6"):
+            require(getattr(self, k) > 0, k, getattr(self, k), "gains of (5.39)-(5.42) must be > 0")
+        require(self.v0 >= 0, "v0", self.v0, "must be >= 0")
+        require(self.sdot_max > 0, "sdot_max", self.sdot_max, "must be > 0")
+        require(0 < self.theta_a < math.pi / 2, "theta_a", self.theta_a, "must be in (0, pi/2)")
+        require(self.stale_after_s > 0, "stale_after_s", self.stale_after_s, "must be > 0")
+
+
+@dataclass(frozen=True)
+class NeighbourState:
+    """A neighbour's coordination state as used by (5.42)."""
+
+    xi: float
+    """s_j - s_dj, extrapolated to now [m]."""
+    sdot: float
+    """sdot_j [m/s]."""
+
+
+def tracking_errors(pose, ref_pose) -> tuple[float, float, float]:
+    """Errors (5.33): robot frame, desired minus actual; theta_e wrapped."""
+    x, y, th = (float(v) for v in pose)
+    xd, yd, thd = (float(v) for v in ref_pose)
+    c, s = math.cos(th), math.sin(th)
+    dx, dy = xd - x, yd - y
+    return c * dx + s * dy, -s * dx + c * dy, wrap_to_pi(thd - th)
+
+
+def _sin_diff_ratio(a: float, b: float) -> float:
+    """(sin a - sin b) / (a - b) = cos((a+b)/2) sinc((a-b)/2), safe at a = b."""
+    h = 0.5 * (a - b)
+    sinc = 1.0 - h * h / 6.0 if abs(h) < 1e-4 else math.sin(h) / h
+    return math.cos(0.5 * (a + b)) * sinc
+
+
+def tracking_law(
+    errors: tuple[float, float, float],
+    v_d: float,
+    kappa: float,
+    sdot: float,
+    k1: float,
+    k4: float,
+    k5: float,
+    theta_a: float = math.pi / 4,
+) -> tuple[float, float, float]:
+    """Unicycle tracking law (5.39)-(5.40) of a virtual vehicle moving at sdot.
+
+    Returns ``(v, omega, delta)``. delta-dot = c y_e-dot depends on omega through (5.34),
+    an algebraic loop solved in closed form (SPEC 2(f) note 1):
+    omega = (A - c sdot sin theta_e) / (1 - c x_e), with the delta-dot term dropped
+    when the denominator is near singular (|x_e| >= 4/pi m on the wrong side).
+    """
+    x_e, y_e, th_e = errors
+    sgn = 1.0 if v_d >= 0 else -1.0
+    t = math.tanh(y_e)
+    delta = -sgn * theta_a * t
+    v = k4 * x_e + v_d * math.cos(th_e)  # (5.39)
+    omega_d = kappa * v_d
+    A = k5 * (th_e - delta) + omega_d + k1 * y_e * v_d * _sin_diff_ratio(th_e, delta)
+    c = -sgn * theta_a * (1.0 - t * t)  # d delta / d y_e
+    den = 1.0 - c * x_e
+    if den > 0.2:
+        omega = (A - c * sdot * math.sin(th_e)) / den  # (5.40) with delta-dot solved
+    else:
+        omega = A
+    return v, omega, delta
+
+
+def consensus_acceleration(
+    errors: tuple[float, float, float],
+    delta: float,
+    kappa: float,
+    sdot: float,
+    xi: float,
+    neighbours: Sequence[NeighbourState],
+    cfg: ConsensusConfig,
+    v_d: float,
+    v_d_dot: float = 0.0,
+) -> float:
+    """Second-order consensus with a reference velocity, (5.42).
+
+    s-ddot = v_d-dot - k6 (sdot - v_d) - x_e cos th_e - y_e sin th_e - (th_e - delta) kappa / k1
+             - 2 k2 sum_j (xi_i - xi_j) - k3 sum_j (sdot_i - sdot_j),
+    with xi = s - s_d, so xi_i - xi_j = s_i - s_j - s_dij.
+    """
+    x_e, y_e, th_e = errors
+    acc = (
+        v_d_dot
+        - cfg.k6 * (sdot - v_d)
+        - x_e * math.cos(th_e)
+        - y_e * math.sin(th_e)
+        - (th_e - delta) * kappa / cfg.k1
+    )
+    for n in neighbours:
+        acc -= 2.0 * cfg.k2 * (xi - n.xi) + cfg.k3 * (sdot - n.sdot)
+    return acc
+
+
+def project_onto_path(path: Path, p) -> float:
+    """Arc length of the point of ``path`` nearest to ``p`` (global search)."""
+    n = max(200, int(path.length / 0.02))
+    s = np.linspace(0.0, path.length, n)
+    d = path.pos(s) - np.asarray(p, dtype=float)[:2]
+    s0 = float(s[np.argmin(np.einsum("ij,ij->i", d, d))])
+    return path.nearest(np.asarray(p, dtype=float)[:2], s0, window=path.length / n * 2)
+
+
+class ConsensusController:
+    """One robot of the Sec. 5.5 team: path following + consensus on s (Theorem 8)."""
+
+    def __init__(self, ctx: RobotContext, cfg: ConsensusConfig) -> None:
+        self.ctx = ctx
+        self.cfg = cfg
+        self.path = ctx.own_path
+        self.model = ctx.model
+        self.s: float | None = cfg.s0
+        self.sdot = cfg.v0
+        self._nbrs: dict[str, tuple[float, float, float, float]] = {}  # name -> (s_d, s, sdot, stamp)
+
+    def _neighbour_states(self, t: float, xi: float) -> list[NeighbourState]:
+        out = []
+        period = self.path.length if self.path.closed else 0.0
+        for s_d, s, sdot, stamp in self._nbrs.values():
+            age = t - stamp
+            if age > self.cfg.stale_after_s:
+                continue
+            xi_j = (s + sdot * age if self.cfg.extrapolate else s) - s_d
+            if period:  # on a shared closed path, a lap apart is the same place
+                xi_j += period * round((xi - xi_j) / period)
+            out.append(NeighbourState(xi=xi_j, sdot=sdot))
+        return out
+
+    def step(self, obs: Observation, inbox: Sequence[PeerMessage]) -> StepResult:
+        cfg = self.cfg
+        for m in inbox:
+            if m.kind == "coord_state":
+                prev = self._nbrs.get(m.sender)
+                if prev is None or m.stamp >= prev[3]:
+                    p = m.payload
+                    self._nbrs[m.sender] = (float(p["s_d"]), float(p["s"]), float(p["sdot"]), m.stamp)
+        if self.s is None:
+            self.s = project_onto_path(self.path, obs.pose)
+        s, sdot = self.s, self.sdot
+        x_d, y_d, th_d, kappa = self.path.frame(s)
+        errors = tracking_errors(obs.pose, (x_d, y_d, th_d))
+        v_d = cfg.v0
+        v, omega, delta = tracking_law(errors, v_d, kappa, sdot, cfg.k1, cfg.k4, cfg.k5, cfg.theta_a)
+        v, omega = self.model.saturate((v, omega))[0] if self.model.kind == "unicycle" else (v, omega)
+        xi = s - cfg.s_d
+        acc = consensus_acceleration(errors, delta, kappa, sdot, xi, self._neighbour_states(obs.t, xi), cfg, v_d)
+        # integrate the virtual vehicle at the control rate (SPEC 2(f) note 3)
+        self.sdot = min(max(sdot + acc * obs.dt, 0.0), cfg.sdot_max)
+        self.s = s + self.sdot * obs.dt
+        msg = Outgoing("coord_state", {"s": s, "sdot": sdot, "s_d": cfg.s_d})
+        telemetry = {
+            "ref": [x_d, y_d, th_d],
+            "s": s,
+            "sdot": sdot,
+            "xi": xi,
+            "speed_error": sdot - v_d,
+            "xi_period": self.path.length if self.path.closed else 0.0,
+        }
+        return StepResult(np.array([float(v), float(omega)]), [msg], telemetry)
+
+
+def build(ctx: RobotContext) -> ConsensusController:
+    cfg = from_table(ConsensusConfig, ctx.params, f"robots.{ctx.name}.controller")
+    return ConsensusController(ctx, cfg)

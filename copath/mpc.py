@@ -1,0 +1,592 @@
+"""Shared MPC scaffolding: RK4 multiple shooting, a fast SQP solver factory, warm starts
+and the fallback policy (Sec. 2.2, SPEC section 0 "NMPC transcription").
+
+Every MPC controller of the project (Ch. 4 and Ch. 5) describes its optimal control
+problem with an :class:`OCP` and solves it with an :class:`MPCSolver`. The solver is
+built once (in the controller's ``__init__``); ``step()`` passes numbers only.
+
+Transcription
+-------------
+Inputs are piecewise constant on a grid of period ``dt`` (2.17)-(2.19); the horizon has
+``N`` steps (T_c = T_p). Multiple shooting with ``substeps`` RK4 steps per interval::
+
+    w = [x_0, u_0, x_1, u_1, ..., x_{N-1}, u_{N-1}, x_N, sigma]
+    g = [x_0 - x0,  x_{k+1} - F(x_k, u_k, p_k)  and  h(x_k, u_k, p_k)  for k < N,
+         h_N(x_N, u_{N-1}, p_N)  (hard),  h_T - sigma, h_T + sigma  (soft)]
+
+The objective is a sum of squares (Gauss-Newton friendly) plus a linear slack penalty::
+
+    J = sum_k ||r(x_k, u_k, p_k)||^2 + ||r_N(x_N, p_N)||^2 + sum w_l sigma + w_q ||sigma||^2
+
+Write a weighted stage cost x^T Q x + u^T R u as the residual ``sqrt(Q) x, sqrt(R) u``
+(see :func:`weighted`). Exactly one of these is evaluated per stage; the time step is
+*not* multiplied into the cost (SPEC section 0: the QP cost (4.30) is an unscaled sum).
+
+Solver (FIELD_NOTES, "CasADi NMPC solve times")
+-----------------------------------------------
+``sqpmethod`` with a structure-exploiting QP solver (``qrqp`` by default, ``osqp`` or
+``qpoases`` on request), a Gauss-Newton Hessian ``2 J_r^T J_r`` (passed as ``hess_lag``),
+JIT compilation with ``compiler="shell"`` when a C compiler works (silently falling back
+to the virtual machine otherwise), and constant bounds pre-built as ``DM``. ``ipopt`` is
+available as ``method="ipopt"``. Warm start: primal and dual solutions of the previous
+solve shifted by one step.
+
+Fallback policy
+---------------
+A solve never raises. If it fails (solver error, non-finite numbers, constraint
+violation above ``feas_tol``), :meth:`MPCSolver.solve` returns a :class:`SolveResult`
+with ``ok=False`` whose plan is the previous plan shifted by one step (``fallback =
+"shifted"``) while one is left, else the ``stop`` input repeated (``fallback = "stop"``).
+
+Usage
+-----
+>>> import casadi as ca
+>>> def f(x, u, p):            # continuous dynamics, SX in, SX out
+...     return ca.vertcat(x[1], u[0])
+>>> ocp = OCP(nx=2, nu=1, N=10, dt=0.1, dynamics=f,
+...           stage_residual=lambda x, u, p: ca.vertcat(x[0], 0.1 * u[0]),
+...           terminal_residual=lambda x, p: x, u_lb=[-1.0], u_ub=[1.0])
+>>> mpc = MPCSolver(ocp, SolverConfig(jit=False))
+>>> res = mpc.solve([1.0, 0.0])
+>>> res.ok, res.u0.shape
+(True, (1,))
+
+Parameters reach the problem per stage (``p_stage``: (N, n_p), row k seen by stage k
+and ``p_stage[N-1]`` also by the terminal terms unless ``n_pt`` terminal parameters
+are declared) and per horizon end (``p_term``: (n_pt,)). ``res.x`` (N+1, nx) and
+``res.u`` (N, nu) are the predicted plan; ``mpc.shifted_plan()`` gives the warm start
+of the next solve, and ``mpc.reset()`` forgets it.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass, field
+from typing import Callable, Sequence
+
+import casadi as ca
+import numpy as np
+
+from .config import require
+
+__all__ = [
+    "SolverConfig",
+    "OCP",
+    "MPCSolver",
+    "SolveResult",
+    "rk4",
+    "weighted",
+    "jit_available",
+    "SOLVER_METHODS",
+    "QP_SOLVERS",
+]
+
+logger = logging.getLogger(__name__)
+
+SOLVER_METHODS = ("sqp", "ipopt")
+QP_SOLVERS = ("qrqp", "osqp", "qpoases")
+HESSIANS = ("gauss-newton", "exact")
+
+_JIT_OK: bool | None = None
+
+# statuses whose iterate is used when it is feasible (a warm-started SQP that stops on
+# its iteration limit still returns a usable, constraint-satisfying plan)
+_ACCEPTABLE = frozenset({"Maximum_Iterations_Exceeded", "Solved_To_Acceptable_Level",
+                         "Search_Direction_Becomes_Too_Small", "Maximum_IterationsExceeded"})
+
+
+def jit_available() -> bool:
+    """True when CasADi can JIT-compile through the system C compiler (cached)."""
+    global _JIT_OK
+    if _JIT_OK is None:
+        try:
+            x = ca.SX.sym("x")
+            f = ca.Function("jit_probe", [x], [x * x], {"jit": True, "compiler": "shell",
+                                                         "jit_options": {"verbose": False}})
+            _JIT_OK = abs(float(f(3.0)) - 9.0) < 1e-12
+        except Exception as exc:  # no compiler, no write access, ...
+            logger.info("CasADi JIT unavailable, using the virtual machine: %s", exc)
+            _JIT_OK = False
+    return _JIT_OK
+
+
+@dataclass(frozen=True)
+class SolverConfig:
+    """How to solve an :class:`OCP` (defaults: FIELD_NOTES' fastest prototype)."""
+
+    method: str = "sqp"
+    """``sqp`` (sqpmethod) or ``ipopt``."""
+    qp_solver: str = "qrqp"
+    """QP solver of ``sqp``: qrqp, osqp or qpoases."""
+    hessian: str = "gauss-newton"
+    """``gauss-newton`` (2 J_r^T J_r of the residuals) or ``exact``."""
+    max_iter: int = 20
+    """Maximum SQP (or interior point) iterations per solve."""
+    tol: float = 1e-6
+    """Primal and dual tolerance of the NLP solver."""
+    feas_tol: float = 1e-3
+    """A returned plan whose constraint violation exceeds this counts as failed."""
+    jit: bool = True
+    """JIT-compile the NLP functions with the C compiler when one works."""
+    jit_flags: tuple[str, ...] = ("-O2",)
+    """Compiler flags of the JIT build."""
+    slack_weight: float = 1e3
+    """Linear penalty per unit slack of soft constraints (exact penalty)."""
+    slack_weight_quadratic: float = 1e2
+    """Quadratic penalty per unit slack squared of soft constraints."""
+
+    def __post_init__(self) -> None:
+        require(self.method in SOLVER_METHODS, "solver.method", self.method, f"allowed: {', '.join(SOLVER_METHODS)}")
+        require(self.qp_solver in QP_SOLVERS, "solver.qp_solver", self.qp_solver, f"allowed: {', '.join(QP_SOLVERS)}")
+        require(self.hessian in HESSIANS, "solver.hessian", self.hessian, f"allowed: {', '.join(HESSIANS)}")
+        require(self.max_iter >= 1, "solver.max_iter", self.max_iter, "must be >= 1")
+        require(self.tol > 0, "solver.tol", self.tol, "must be > 0")
+        require(self.feas_tol > 0, "solver.feas_tol", self.feas_tol, "must be > 0")
+        require(self.slack_weight >= 0, "solver.slack_weight", self.slack_weight, "must be >= 0")
+        require(self.slack_weight_quadratic >= 0, "solver.slack_weight_quadratic",
+                self.slack_weight_quadratic, "must be >= 0")
+
+
+SXFn = Callable[..., ca.SX]
+
+
+@dataclass
+class OCP:
+    """Symbolic description of an optimal control problem (all callables take SX).
+
+    Attributes
+    ----------
+    nx, nu, N : int
+        State size, input size, horizon steps.
+    dt : float
+        Step length delta [s].
+    dynamics : callable (x, u, p) -> xdot
+        Continuous-time model, integrated with RK4 over each step.
+    stage_residual : callable (x, u, p) -> r
+        Stage cost ||r||^2 at k = 0..N-1.
+    terminal_residual : callable (x_N, p_T) -> r, optional
+        Terminal cost ||r||^2.
+    n_p, n_pt : int
+        Number of stage parameters (per step) and terminal parameters.
+    u_lb, u_ub : (nu,) or (N, nu)
+        Hard input bounds (actuator constraints are hard, Sec. 2.2.2).
+    x_lb, x_ub : (nx,), optional
+        Hard state bounds on x_1..x_N.
+    stage_constraint : callable (x, u, p) -> h, optional
+        Hard path constraint ``h_lb <= h <= h_ub`` on k = 0..N-1.
+    terminal_constraint : callable (x_N, u_{N-1}, p_T) -> h, optional
+        Hard terminal constraint ``hN_lb <= h <= hN_ub``.
+    soft_terminal : callable (x_N, u_{N-1}, p_T) -> h, optional
+        Soft terminal constraint ``hT_lb - sigma <= h <= hT_ub + sigma``, sigma >= 0 with
+        the slack penalties of :class:`SolverConfig` (terminal regions, Sec. 2.2.2).
+    substeps : int
+        RK4 steps per interval.
+    stop_u : (nu,), optional
+        Input meaning "stop"; the last fallback (default zeros).
+    """
+
+    nx: int
+    nu: int
+    N: int
+    dt: float
+    dynamics: SXFn
+    stage_residual: SXFn
+    terminal_residual: SXFn | None = None
+    n_p: int = 0
+    n_pt: int = 0
+    u_lb: Sequence[float] | np.ndarray | None = None
+    u_ub: Sequence[float] | np.ndarray | None = None
+    x_lb: Sequence[float] | np.ndarray | None = None
+    x_ub: Sequence[float] | np.ndarray | None = None
+    stage_constraint: SXFn | None = None
+    h_lb: Sequence[float] | None = None
+    h_ub: Sequence[float] | None = None
+    terminal_constraint: SXFn | None = None
+    hN_lb: Sequence[float] | None = None
+    hN_ub: Sequence[float] | None = None
+    soft_terminal: SXFn | None = None
+    hT_lb: Sequence[float] | None = None
+    hT_ub: Sequence[float] | None = None
+    substeps: int = 1
+    stop_u: Sequence[float] | np.ndarray | None = None
+    name: str = "mpc"
+
+    def __post_init__(self) -> None:
+        require(self.nx >= 1, "ocp.nx", self.nx, "must be >= 1")
+        require(self.nu >= 1, "ocp.nu", self.nu, "must be >= 1")
+        require(self.N >= 1, "horizon", self.N, "must be >= 1")
+        require(self.dt > 0, "dt", self.dt, "must be > 0")
+        require(self.substeps >= 1, "substeps", self.substeps, "must be >= 1")
+
+
+def rk4(f: SXFn, x, u, p, h: float, substeps: int = 1):
+    """State after ``h`` seconds of the classic RK4 scheme with ``substeps`` steps."""
+    hs = h / substeps
+    for _ in range(substeps):
+        k1 = f(x, u, p)
+        k2 = f(x + hs / 2 * k1, u, p)
+        k3 = f(x + hs / 2 * k2, u, p)
+        k4 = f(x + hs * k3, u, p)
+        x = x + hs / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+    return x
+
+
+def weighted(vec, weights) -> ca.SX:
+    """Residual ``sqrt(w) * vec`` so that ``||r||^2 = vec^T diag(w) vec``."""
+    w = np.sqrt(np.asarray(weights, dtype=float).reshape(-1))
+    return ca.vertcat(*[float(wi) * vec[i] for i, wi in enumerate(w)])
+
+
+@dataclass
+class SolveResult:
+    """Outcome of one :meth:`MPCSolver.solve` (a value, never an exception)."""
+
+    ok: bool
+    """True when the returned plan is a solution of this solve."""
+    status: str
+    """Solver return status (e.g. ``Solve_Succeeded``) or the failure reason."""
+    u: np.ndarray
+    """(N, nu) planned inputs (the fallback plan when not ok)."""
+    x: np.ndarray
+    """(N+1, nx) predicted states (shifted previous prediction when not ok)."""
+    iterations: int = 0
+    cost: float = math.nan
+    slack: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    """Soft-constraint slacks at the solution."""
+    fallback: str | None = None
+    """None, ``"shifted"`` (previous plan shifted) or ``"stop"``."""
+
+    @property
+    def u0(self) -> np.ndarray:
+        """First input of the plan, to apply now."""
+        return self.u[0]
+
+
+class MPCSolver:
+    """Build once, solve many: the NLP of an :class:`OCP` with warm starts and fallbacks.
+
+    Parameters
+    ----------
+    ocp : OCP
+        Problem description.
+    config : SolverConfig
+        Solver choice and tolerances.
+    """
+
+    def __init__(self, ocp: OCP, config: SolverConfig | None = None) -> None:
+        self.ocp = ocp
+        self.config = config or SolverConfig()
+        self._build_symbolic()
+        self._solver = self._make_solver()
+        self._plan_w: np.ndarray | None = None
+        self._lam_x: np.ndarray | None = None
+        self._lam_g: np.ndarray | None = None
+        self._fallback_plan: np.ndarray | None = None
+        self._fallback_x: np.ndarray | None = None
+        self.failures = 0
+        self._build_shift_indices()
+
+    # -- construction -----------------------------------------------------------------
+    def _build_symbolic(self) -> None:
+        o = self.ocp
+        nx, nu, N = o.nx, o.nu, o.N
+        X = [ca.SX.sym(f"x{k}", nx) for k in range(N + 1)]
+        U = [ca.SX.sym(f"u{k}", nu) for k in range(N)]
+        x0 = ca.SX.sym("x0", nx)
+        P = [ca.SX.sym(f"p{k}", o.n_p) for k in range(N)]
+        PT = ca.SX.sym("pT", o.n_pt) if o.n_pt else P[-1]
+        residuals, g, lbg, ubg = [], [X[0] - x0], [np.zeros(nx)], [np.zeros(nx)]
+        self._g_stage = []  # (start, size) of each stage block in g, for dual shifting
+        row = nx
+        for k in range(N):
+            residuals.append(o.stage_residual(X[k], U[k], P[k]))
+            xn = rk4(o.dynamics, X[k], U[k], P[k], o.dt, o.substeps)
+            blk = [X[k + 1] - xn]
+            lo, hi = [np.zeros(nx)], [np.zeros(nx)]
+            if o.stage_constraint is not None:
+                h = o.stage_constraint(X[k], U[k], P[k])
+                blk.append(h)
+                lo.append(np.broadcast_to(np.asarray(o.h_lb, float), (h.numel(),)))
+                hi.append(np.broadcast_to(np.asarray(o.h_ub, float), (h.numel(),)))
+            b = ca.vertcat(*blk)
+            g.append(b)
+            lbg += lo
+            ubg += hi
+            self._g_stage.append((row, b.numel()))
+            row += b.numel()
+        if o.terminal_residual is not None:
+            residuals.append(o.terminal_residual(X[N], PT))
+        if o.terminal_constraint is not None:
+            h = o.terminal_constraint(X[N], U[N - 1], PT)
+            g.append(h)
+            lbg.append(np.broadcast_to(np.asarray(o.hN_lb, float), (h.numel(),)))
+            ubg.append(np.broadcast_to(np.asarray(o.hN_ub, float), (h.numel(),)))
+            row += h.numel()
+        n_slack = 0
+        sigma = ca.SX.sym("sigma", 0)
+        if o.soft_terminal is not None:
+            h = o.soft_terminal(X[N], U[N - 1], PT)
+            n_slack = h.numel()
+            sigma = ca.SX.sym("sigma", n_slack)
+            hl = np.broadcast_to(np.asarray(o.hT_lb, float), (n_slack,))
+            hu = np.broadcast_to(np.asarray(o.hT_ub, float), (n_slack,))
+            g += [h - sigma, h + sigma]
+            lbg += [np.full(n_slack, -np.inf), hl]
+            ubg += [hu, np.full(n_slack, np.inf)]
+            residuals.append(math.sqrt(self.config.slack_weight_quadratic) * sigma)
+        r = ca.vertcat(*residuals)
+        f = ca.sumsqr(r) + self.config.slack_weight * ca.sum1(sigma)
+        # decision vector layout (see module docstring)
+        parts = []
+        for k in range(N):
+            parts += [X[k], U[k]]
+        parts += [X[N], sigma]
+        w = ca.vertcat(*parts)
+        p = ca.vertcat(x0, *P, PT) if o.n_pt else ca.vertcat(x0, *P)
+        self._w, self._p, self._f, self._g, self._r = w, p, f, ca.vertcat(*g), r
+        self._n_slack = n_slack
+        self._stride = nx + nu
+        self._nw = w.numel()
+        # bounds
+        u_lb = self._stage_bounds(o.u_lb, -np.inf, nu)
+        u_ub = self._stage_bounds(o.u_ub, np.inf, nu)
+        x_lb = np.broadcast_to(np.asarray(o.x_lb if o.x_lb is not None else -np.inf, float), (nx,))
+        x_ub = np.broadcast_to(np.asarray(o.x_ub if o.x_ub is not None else np.inf, float), (nx,))
+        lbw, ubw = [], []
+        for k in range(N):
+            lbw += [np.full(nx, -np.inf) if k == 0 else x_lb, u_lb[k]]
+            ubw += [np.full(nx, np.inf) if k == 0 else x_ub, u_ub[k]]
+        lbw += [x_lb, np.zeros(n_slack)]
+        ubw += [x_ub, np.full(n_slack, np.inf)]
+        self._lbw_np, self._ubw_np = np.concatenate(lbw), np.concatenate(ubw)
+        self._lbw, self._ubw = ca.DM(self._lbw_np), ca.DM(self._ubw_np)
+        self._lbg_np, self._ubg_np = np.concatenate(lbg), np.concatenate(ubg)
+        self._lbg, self._ubg = ca.DM(self._lbg_np), ca.DM(self._ubg_np)
+        self._stop_u = np.zeros(nu) if o.stop_u is None else np.asarray(o.stop_u, float).reshape(nu)
+        self._u_lb, self._u_ub = u_lb, u_ub
+
+    def _stage_bounds(self, b, default: float, nu: int) -> np.ndarray:
+        if b is None:
+            return np.full((self.ocp.N, nu), default)
+        b = np.asarray(b, float)
+        return np.broadcast_to(b, (self.ocp.N, nu)).copy()
+
+    def _jit_opts(self) -> dict:
+        return {"jit": True, "compiler": "shell",
+                "jit_options": {"flags": list(self.config.jit_flags), "verbose": False}}
+
+    def _make_solver(self) -> ca.Function:
+        use_jit = self.config.jit and jit_available()
+        try:
+            return self._nlpsol(use_jit)
+        except Exception as exc:  # compiler failure: fall back silently (logged)
+            if not use_jit:
+                raise
+            logger.info("JIT build of %s failed, using the virtual machine: %s", self.ocp.name, exc)
+            return self._nlpsol(False)
+
+    def _nlpsol(self, use_jit: bool) -> ca.Function:
+        c = self.config
+        nlp = {"x": self._w, "p": self._p, "f": self._f, "g": self._g}
+        opts: dict = {"print_time": False, "error_on_fail": False}
+        if use_jit:
+            opts.update(self._jit_opts())
+        if c.method == "ipopt":
+            opts["ipopt"] = {"print_level": 0, "max_iter": c.max_iter, "tol": c.tol,
+                             "sb": "yes", "warm_start_init_point": "yes",
+                             "mu_init": 1e-3, "acceptable_tol": 1e-4}
+            if c.hessian == "gauss-newton":
+                opts["hess_lag"] = self._gn_hessian(use_jit)
+            return ca.nlpsol(f"{self.ocp.name}_ipopt", "ipopt", nlp, opts)
+        qp_opts: dict = {}
+        if c.qp_solver == "qrqp":
+            qp_opts = {"print_iter": False, "print_header": False, "print_info": False,
+                       "error_on_fail": False}
+        elif c.qp_solver == "osqp":
+            qp_opts = {"osqp": {"verbose": False, "eps_abs": 1e-8, "eps_rel": 1e-8, "polish": True},
+                       "warm_start_primal": True, "error_on_fail": False}
+        else:
+            qp_opts = {"printLevel": "none", "sparse": True, "error_on_fail": False}
+        opts.update({
+            "qpsol": c.qp_solver,
+            "qpsol_options": qp_opts,
+            "max_iter": c.max_iter,
+            "tol_pr": c.tol,
+            "tol_du": c.tol,
+            "print_header": False,
+            "print_iteration": False,
+            "print_status": False,
+            "min_step_size": 1e-12,
+        })
+        if c.hessian == "gauss-newton":
+            opts["hess_lag"] = self._gn_hessian(use_jit)
+        return ca.nlpsol(f"{self.ocp.name}_sqp", "sqpmethod", nlp, opts)
+
+    def _gn_hessian(self, use_jit: bool) -> ca.Function:
+        """Gauss-Newton Hessian of the Lagrangian: lam_f * 2 J_r^T J_r (+ tiny regulariser)."""
+        lam_f = ca.SX.sym("lam_f")
+        lam_g = ca.SX.sym("lam_g", self._g.numel())
+        J = ca.jacobian(self._r, self._w)
+        H = lam_f * 2 * ca.mtimes(J.T, J) + 1e-9 * ca.SX.eye(self._nw)
+        opts = self._jit_opts() if use_jit else {}
+        return ca.Function("nlp_hess_l", [self._w, self._p, lam_f, lam_g], [H],
+                           ["x", "p", "lam_f", "lam_g"], ["hess_gamma_x_x"], opts)
+
+    # -- plan bookkeeping ------------------------------------------------------------
+    def _split(self, w: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        o = self.ocp
+        body = w[: o.N * self._stride].reshape(o.N, self._stride)
+        X = np.vstack([body[:, : o.nx], w[o.N * self._stride: o.N * self._stride + o.nx][None, :]])
+        U = body[:, o.nx:]
+        S = w[o.N * self._stride + o.nx:]
+        return X, U, S
+
+    def _join(self, X: np.ndarray, U: np.ndarray, S: np.ndarray) -> np.ndarray:
+        body = np.hstack([X[:-1], U]).reshape(-1)
+        return np.concatenate([body, X[-1], S])
+
+    def shifted_plan(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """(X, U) of the last solution shifted by one step (last entries repeated)."""
+        if self._plan_w is None:
+            return None
+        X, U, _ = self._split(self._plan_w)
+        return np.vstack([X[1:], X[-1:]]), np.vstack([U[1:], U[-1:]])
+
+    def reset(self) -> None:
+        """Forget the warm start and the fallback plan."""
+        self._plan_w = self._lam_x = self._lam_g = None
+        self._fallback_plan = self._fallback_x = None
+
+    def set_initial_guess(self, X: np.ndarray, U: np.ndarray) -> None:
+        """Warm-start the next solve from a given plan (e.g. a rollout of a simple law)."""
+        o = self.ocp
+        X = np.asarray(X, float).reshape(o.N + 1, o.nx)
+        U = np.asarray(U, float).reshape(o.N, o.nu)
+        self._plan_w = self._join(X, U, np.zeros(self._n_slack))
+        self._lam_x = self._lam_g = None
+
+    def _build_shift_indices(self) -> None:
+        """Index arrays that shift w, lam_x and lam_g by one stage in one take."""
+        o = self.ocp
+        nx, st = o.nx, self._stride
+        idx = np.arange(self._nw)
+        w_shift = idx.copy()
+        for k in range(o.N):
+            src_x = (k + 1) * st if k + 1 < o.N else o.N * st  # X_{k+1}
+            w_shift[k * st: k * st + nx] = idx[src_x: src_x + nx]
+            src_u = min(k + 1, o.N - 1) * st + nx
+            w_shift[k * st + nx: (k + 1) * st] = idx[src_u: src_u + o.nu]
+        self._w_shift = w_shift
+        g_shift = np.arange(self._g.numel())
+        blocks = self._g_stage
+        for k in range(len(blocks) - 1):
+            (a0, n0), (a1, _) = blocks[k], blocks[k + 1]
+            g_shift[a0:a0 + n0] = np.arange(a1, a1 + n0)
+        self._g_shift = g_shift
+
+    # -- solving ------------------------------------------------------------------------
+    def solve(
+        self,
+        x0,
+        p_stage=None,
+        p_term=None,
+        guess: tuple[np.ndarray, np.ndarray] | None = None,
+        u_lb=None,
+        u_ub=None,
+    ) -> SolveResult:
+        """Solve from state ``x0`` with parameters; never raises on solver failure.
+
+        Parameters
+        ----------
+        x0 : (nx,)
+            Current (error) state.
+        p_stage : (N, n_p), optional
+            Stage parameters (row k for step k).
+        p_term : (n_pt,), optional
+            Terminal parameters.
+        guess : (X (N+1, nx), U (N, nu)), optional
+            Initial guess overriding the shifted previous solution.
+        u_lb, u_ub : (nu,) or (N, nu), optional
+            Input bounds replacing the OCP's for this solve only.
+        """
+        o = self.ocp
+        x0 = np.asarray(x0, float).reshape(o.nx)
+        parts = [x0]
+        if o.n_p:
+            parts.append(np.asarray(p_stage, float).reshape(-1))
+        if o.n_pt:
+            parts.append(np.asarray(p_term, float).reshape(-1))
+        p = np.concatenate(parts)
+        if p.size != self._p.numel():
+            return self._fail(f"parameter size {p.size} != {self._p.numel()}", x0)
+        lbw, ubw, lo, hi = self._lbw, self._ubw, self._lbw_np, self._ubw_np
+        if u_lb is not None or u_ub is not None:
+            lo, hi = lo.copy(), hi.copy()
+            for k in range(o.N):
+                a = k * self._stride + o.nx
+                if u_lb is not None:
+                    lo[a:a + o.nu] = np.broadcast_to(np.asarray(u_lb, float), (o.N, o.nu))[k]
+                if u_ub is not None:
+                    hi[a:a + o.nu] = np.broadcast_to(np.asarray(u_ub, float), (o.N, o.nu))[k]
+            lbw, ubw = ca.DM(lo), ca.DM(hi)
+        lam_x = lam_g = None
+        if guess is not None:
+            w0 = self._join(np.asarray(guess[0], float).reshape(o.N + 1, o.nx),
+                            np.asarray(guess[1], float).reshape(o.N, o.nu), np.zeros(self._n_slack))
+        elif self._plan_w is not None:
+            w0 = self._plan_w[self._w_shift]
+            if self._lam_x is not None:
+                lam_x = self._lam_x[self._w_shift]
+                lam_g = self._lam_g[self._g_shift]
+        else:
+            w0 = self._join(np.tile(x0, (o.N + 1, 1)), np.tile(self._stop_u, (o.N, 1)),
+                            np.zeros(self._n_slack))
+        w0[: o.nx] = x0
+        # keep the initial guess inside the box (active-set QP solvers prefer it)
+        np.clip(w0, lo, hi, out=w0)
+        args = {"x0": w0, "p": p, "lbx": lbw, "ubx": ubw, "lbg": self._lbg, "ubg": self._ubg}
+        if lam_x is not None:
+            args["lam_x0"] = lam_x
+            args["lam_g0"] = lam_g
+        try:
+            sol = self._solver.call(args)
+            stats = self._solver.stats()
+        except Exception as exc:  # CasADi raises RuntimeError on evaluation errors
+            return self._fail(f"exception: {exc}", x0)
+        status = str(stats.get("return_status", "unknown"))
+        w = sol["x"].full().ravel()
+        g = sol["g"].full().ravel()
+        viol = max(0.0, float(np.max(self._lbg_np - g, initial=0.0)), float(np.max(g - self._ubg_np, initial=0.0)))
+        finite = bool(np.isfinite(w).all()) and math.isfinite(viol)
+        accepted = finite and viol <= self.config.feas_tol and (
+            bool(stats.get("success", False)) or status in _ACCEPTABLE
+        )
+        if not accepted:
+            reason = status if finite else "non-finite solution"
+            return self._fail(f"{reason} (violation {viol:.2g})", x0)
+        self._plan_w = w
+        self._lam_x = sol["lam_x"].full().ravel()
+        self._lam_g = sol["lam_g"].full().ravel()
+        X, U, S = self._split(w)
+        self._fallback_plan, self._fallback_x = U, X
+        return SolveResult(True, status, U, X, int(stats.get("iter_count", 0)), float(sol["f"]), S, None)
+
+    def _fail(self, reason: str, x0: np.ndarray) -> SolveResult:
+        """Fallback policy: shifted previous plan while one is left, else stop."""
+        o = self.ocp
+        self.failures += 1
+        logger.warning("%s: solve failed (%s), using fallback", o.name, reason)
+        self._plan_w = None  # a failed iterate is no warm start
+        self._lam_x = self._lam_g = None
+        if self._fallback_plan is not None and len(self._fallback_plan) > 1:
+            U = self._fallback_plan[1:]
+            X = self._fallback_x[1:]
+            self._fallback_plan, self._fallback_x = U, X
+            U_full = np.vstack([U, np.tile(U[-1], (o.N - len(U), 1))])
+            X_full = np.vstack([X, np.tile(X[-1], (o.N + 1 - len(X), 1))])
+            return SolveResult(False, reason, U_full, X_full, fallback="shifted")
+        self._fallback_plan = self._fallback_x = None
+        U = np.tile(self._stop_u, (o.N, 1))
+        X = np.tile(x0, (o.N + 1, 1))
+        return SolveResult(False, reason, U, X, fallback="stop")

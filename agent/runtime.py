@@ -1,0 +1,163 @@
+"""One robot's runtime around its controller: inbox, faults, range filter, envelopes.
+
+:class:`RobotRuntime` is transport-free: the agent process (``agent/node.py``) feeds it
+records received over Zenoh, and the in-process loop (``orchestrator/inprocess.py``)
+feeds it directly, so both run the exact same logic:
+
+1. peer envelopes go through the receiver-side fault layer (``copath.wire.faults``);
+2. at a control instant, released messages from beyond the communication range are
+   dropped (Def. 10: the sender's position travels in the envelope, no oracle);
+3. the controller steps; an exception inside it is logged and counted and the robot
+   stops for that step (it never kills the process);
+4. its outgoing messages become envelopes on the sender's keys.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from agent.controllers import build_controller
+from agent.controllers.base import Observation, PeerMessage, RobotContext
+from copath.scenario import Scenario
+from copath.wire.faults import FaultyInbox, LinkFaults
+from copath.wire.keys import Keys
+from copath.wire.messages import Command, Obs, PeerEnvelope, Telemetry, to_plain
+
+logger = logging.getLogger(__name__)
+
+__all__ = ["RobotRuntime", "StepOutput", "sensor_angles"]
+
+
+def sensor_angles(count: int) -> np.ndarray:
+    """Bearings of a ring of ``count`` range sensors, from 0 rad counter-clockwise."""
+    return 2 * math.pi * np.arange(count) / count
+
+
+@dataclass
+class StepOutput:
+    command: Command
+    peers: list[tuple[str, PeerEnvelope]]
+    telemetry: Telemetry
+
+
+@dataclass
+class Counters:
+    received: int = 0
+    dropped_by_faults: int = 0
+    partitioned: int = 0
+    out_of_range: int = 0
+    delivered: int = 0
+    rejected: int = 0
+    controller_errors: int = 0
+    steps: int = 0
+    extra: dict = field(default_factory=dict)
+
+    def as_dict(self) -> dict:
+        d = {k: v for k, v in self.__dict__.items() if k != "extra"}
+        d.update(self.extra)
+        return d
+
+
+class RobotRuntime:
+    """Controller + fault-layer inbox + envelope bookkeeping for one robot."""
+
+    def __init__(self, scenario: Scenario, name: str, keys: Keys) -> None:
+        spec = scenario.robot(name)
+        self.name = name
+        self.keys = keys
+        self.scenario = scenario
+        self.dt = scenario.run.dt
+        self.comm_range = scenario.network.range_m
+        self.neighbours = spec.neighbours if self.comm_range == 0 else None
+        ctx = RobotContext(
+            name=name,
+            index=scenario.robot_names.index(name),
+            model=spec.model,
+            paths=scenario.paths,
+            path=spec.path,
+            neighbours=spec.neighbours,
+            robots=scenario.robot_names,
+            dt=scenario.run.dt,
+            params=dict(spec.params),
+            seed=scenario.run.seed,
+            comm_range=self.comm_range,
+        )
+        self.controller = build_controller(spec.controller, ctx)
+        self.faults = LinkFaults(scenario.network, scenario.run.seed, name)
+        self.inbox = FaultyInbox(self.faults)
+        self.counters = Counters()
+        self.seq = 0
+        self.sensors = scenario.sensors
+        self._angles = sensor_angles(scenario.sensors.count) if scenario.sensors.enabled else None
+        self._cmd_size = spec.model.command_size
+
+    @property
+    def subscriptions(self) -> list[str]:
+        return self.keys.peer_subscriptions(self.name, self.neighbours)
+
+    def receive(self, env: PeerEnvelope) -> None:
+        """Accept a peer envelope that arrived (before faults)."""
+        if env.sender == self.name:
+            return
+        self.counters.received += 1
+        if not self.inbox.push(env.sender, env.stamp, env):
+            self.counters.dropped_by_faults = self.faults.dropped
+            self.counters.partitioned = self.faults.partitioned
+
+    def step(self, obs: Obs, now: float) -> StepOutput:
+        """Run one control instant at controller time ``now`` with the latest observation."""
+        pose = np.asarray(obs.pose, dtype=float)
+        inbox = []
+        for env in self.inbox.pop_ready(now):
+            if self.comm_range > 0 and math.hypot(env.pos[0] - pose[0], env.pos[1] - pose[1]) > self.comm_range:
+                self.counters.out_of_range += 1
+                continue
+            inbox.append(PeerMessage(env.sender, env.kind, env.stamp, now - env.stamp, env.payload, tuple(env.pos)))
+        self.counters.delivered += len(inbox)
+        ranges = None if obs.ranges is None else np.asarray(obs.ranges, dtype=float)
+        observation = Observation(
+            t=now,
+            pose=pose,
+            dt=self.dt,
+            ranges=ranges,
+            sensor_angles=self._angles,
+            sensor_max_range=self.sensors.max_range_m if self._angles is not None else 0.0,
+        )
+        t0 = time.perf_counter()
+        try:
+            res = self.controller.step(observation, inbox)
+            cmd = [float(c) for c in np.asarray(res.command, dtype=float).reshape(-1)]
+            if len(cmd) != self._cmd_size or not all(math.isfinite(c) for c in cmd):
+                raise ValueError(f"controller returned command {cmd!r}; expected {self._cmd_size} finite values")
+            messages, telemetry = res.messages, dict(res.telemetry)
+        except Exception:  # the robot stops for this step instead of dying
+            logger.exception("robot %s: controller step failed at t=%.3f; stopping for this step", self.name, now)
+            self.counters.controller_errors += 1
+            cmd, messages, telemetry = [0.0] * self._cmd_size, [], {"solver_ok": False}
+        solve_ms = (time.perf_counter() - t0) * 1e3
+        self.counters.steps += 1
+        peers = []
+        for m in messages:
+            self.seq += 1
+            env = PeerEnvelope(self.name, self.seq, float(now), m.kind, [float(pose[0]), float(pose[1])],
+                               to_plain(dict(m.payload)))
+            if m.to is None:
+                peers.append((self.keys.peer_broadcast(self.name), env))
+            else:
+                for r in m.to:
+                    peers.append((self.keys.peer_direct(self.name, r), env))
+        return StepOutput(
+            Command(obs.k, float(now), cmd, solve_ms),
+            peers,
+            Telemetry(obs.k, float(now), to_plain(telemetry)),
+        )
+
+    def closing_counters(self) -> dict:
+        self.counters.dropped_by_faults = self.faults.dropped
+        self.counters.partitioned = self.faults.partitioned
+        return self.counters.as_dict()

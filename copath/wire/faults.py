@@ -1,0 +1,122 @@
+"""Fault layer on robot-to-robot links: delay, jitter, Bernoulli and burst loss, partitions.
+
+Faults are applied where a message is received, from a seed: each directed link
+(sender -> receiver) has its own random stream, consumed once per message in the
+sender's sequence order, so a lockstep run is deterministic whatever the arrival timing.
+
+Burst loss follows the Gilbert-Elliott model: a two-state Markov chain per link (good,
+bad) with transition probabilities p_gb, p_bg per message and loss probability
+``burst_loss`` in the bad state (on top of the Bernoulli ``loss``).
+
+Delivery (:class:`FaultyInbox`): a message stamped ``stamp`` is released at
+``stamp + delay + U(0, jitter)`` and delivered at the first receiver instant ``now`` with
+``release <= now`` and ``stamp < now``: a message is never seen in the same control
+instant it was sent, which makes lockstep runs independent of process scheduling.
+"""
+
+from __future__ import annotations
+
+import heapq
+import math
+import zlib
+from dataclasses import dataclass
+
+import numpy as np
+
+from copath.scenario import NetworkConfig
+
+__all__ = ["LinkFaults", "FaultyInbox", "Delivery"]
+
+
+def _h(name: str) -> int:
+    return zlib.crc32(name.encode())
+
+
+class LinkFaults:
+    """Per-receiver fault decisions for every incoming link."""
+
+    def __init__(self, net: NetworkConfig, seed: int, receiver: str) -> None:
+        self.net = net
+        self.seed = int(seed)
+        self.receiver = receiver
+        self._rng: dict[str, np.random.Generator] = {}
+        self._bad: dict[str, bool] = {}
+        self.dropped = 0
+        self.partitioned = 0
+
+    def _stream(self, sender: str) -> np.random.Generator:
+        g = self._rng.get(sender)
+        if g is None:
+            g = np.random.default_rng(np.random.SeedSequence([self.seed, _h(sender), _h(self.receiver)]))
+            self._rng[sender] = g
+            self._bad[sender] = False
+        return g
+
+    def _partitioned(self, sender: str, stamp: float) -> bool:
+        for p in self.net.partitions:
+            if p.start_s <= stamp < p.end_s:
+                for a, b in p.links:
+                    if {a, b} == {sender, self.receiver}:
+                        return True
+        return False
+
+    def release_time(self, sender: str, stamp: float) -> float | None:
+        """Release time of a message, or None when the fault layer drops it."""
+        g = self._stream(sender)
+        u_loss, u_burst, u_state, u_jit = g.random(4)  # always 4 draws: streams stay aligned
+        if self._partitioned(sender, stamp):
+            self.partitioned += 1
+            return None
+        net = self.net
+        lost = u_loss < net.loss
+        if net.burst_p_gb > 0:
+            bad = self._bad[sender]
+            bad = (u_state >= net.burst_p_bg) if bad else (u_state < net.burst_p_gb)
+            self._bad[sender] = bad
+            lost = lost or (bad and u_burst < net.burst_loss)
+        if lost:
+            self.dropped += 1
+            return None
+        return stamp + (net.delay_ms + u_jit * net.jitter_ms) / 1000.0
+
+
+@dataclass(order=True)
+class Delivery:
+    release: float
+    order: int
+    item: object = None
+
+
+class FaultyInbox:
+    """Receiver-side queue applying :class:`LinkFaults` and delivering by release time."""
+
+    def __init__(self, faults: LinkFaults) -> None:
+        self.faults = faults
+        self._heap: list[Delivery] = []
+        self._n = 0
+
+    def push(self, sender: str, stamp: float, item: object) -> bool:
+        """Queue ``item``; False when the fault layer dropped it."""
+        release = self.faults.release_time(sender, stamp)
+        if release is None:
+            return False
+        self._n += 1
+        heapq.heappush(self._heap, Delivery(max(release, stamp), self._n, (stamp, item)))
+        return True
+
+    def pop_ready(self, now: float, eps: float = 1e-9) -> list[object]:
+        """Items whose release time has come (never one stamped at ``now`` itself)."""
+        out, later = [], []
+        while self._heap and self._heap[0].release <= now + eps:
+            d = heapq.heappop(self._heap)
+            stamp, item = d.item
+            if stamp < now - eps:
+                out.append(item)
+            else:
+                later.append(d)
+        for d in later:
+            heapq.heappush(self._heap, d)
+        return out
+
+    def __len__(self) -> int:
+        return len(self._heap)

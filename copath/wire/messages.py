@@ -1,0 +1,289 @@
+"""Message schemas of a copath run, packed with msgpack (the one place that defines them).
+
+Every record is a frozen dataclass that packs itself to a msgpack map carrying
+``v`` (``WIRE_VERSION``) and ``type`` (its tag) and unpacks with validation: a record of
+another version, an unknown tag, a missing field or a field of the wrong type raises
+:class:`WireError`, which receivers count as a reject instead of crashing.
+
+Arrays cross the boundary as lists of Python floats (msgpack refuses numpy scalars
+other than float64; FIELD_NOTES).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from typing import Any, ClassVar, Mapping
+
+import msgpack
+
+from .payloads import PAYLOADS
+
+__all__ = [
+    "WIRE_VERSION",
+    "WireError",
+    "Obs",
+    "Command",
+    "Telemetry",
+    "Truth",
+    "PeerEnvelope",
+    "Start",
+    "End",
+    "Event",
+    "Stats",
+    "RECORD_TYPES",
+    "unpack",
+    "validate_payload",
+    "to_plain",
+]
+
+WIRE_VERSION = 1
+
+
+class WireError(ValueError):
+    """A received message does not match its schema."""
+
+
+def to_plain(x: Any) -> Any:
+    """Convert numpy arrays/scalars and tuples into msgpack-friendly Python values."""
+    if hasattr(x, "tolist"):
+        return x.tolist()
+    if isinstance(x, (list, tuple)):
+        return [to_plain(v) for v in x]
+    if isinstance(x, dict):
+        return {str(k): to_plain(v) for k, v in x.items()}
+    return x
+
+
+_CHECKS = {
+    "float": lambda v: isinstance(v, (int, float)) and not isinstance(v, bool),
+    "int": lambda v: isinstance(v, int) and not isinstance(v, bool),
+    "bool": lambda v: isinstance(v, bool),
+    "str": lambda v: isinstance(v, str),
+    "floats": lambda v: isinstance(v, list) and all(_CHECKS["float"](e) for e in v),
+    "ints": lambda v: isinstance(v, list) and all(_CHECKS["int"](e) for e in v),
+    "points": lambda v: isinstance(v, list)
+    and all(isinstance(e, list) and len(e) == 2 and all(_CHECKS["float"](c) for c in e) for e in v),
+    "any": lambda v: True,
+    "dict": lambda v: isinstance(v, dict),
+    "floats?": lambda v: v is None or _CHECKS["floats"](v),
+    "float?": lambda v: v is None or _CHECKS["float"](v),
+    "strs": lambda v: isinstance(v, list) and all(isinstance(e, str) for e in v),
+    "bools": lambda v: isinstance(v, list) and all(isinstance(e, bool) for e in v),
+    "matrix": lambda v: isinstance(v, list) and all(_CHECKS["floats"](e) for e in v),
+}
+
+
+def validate_payload(kind: str, payload: Any) -> None:
+    """Check a robot-to-robot payload against ``copath.wire.payloads.PAYLOADS``."""
+    schema = PAYLOADS.get(kind)
+    if schema is None:
+        raise WireError(f"unknown message kind {kind!r}; known: {sorted(PAYLOADS)}")
+    if not isinstance(payload, dict):
+        raise WireError(f"{kind}: payload must be a map, got {type(payload).__name__}")
+    for name, typ in schema.items():
+        optional = name.endswith("?")
+        key = name[:-1] if optional else name
+        if key not in payload:
+            if optional:
+                continue
+            raise WireError(f"{kind}: missing field {key!r}")
+        if not _CHECKS[typ](payload[key]):
+            raise WireError(f"{kind}.{key} = {payload[key]!r} is not a {typ}")
+
+
+class _Record:
+    """Mixin: pack/unpack with version, tag and field-type validation."""
+
+    TYPE: ClassVar[str]
+    FIELDS: ClassVar[dict[str, str]]
+
+    def to_dict(self) -> dict[str, Any]:
+        d = {f.name: to_plain(getattr(self, f.name)) for f in dataclasses.fields(self)}
+        d["v"] = WIRE_VERSION
+        d["type"] = self.TYPE
+        return d
+
+    def pack(self) -> bytes:
+        return msgpack.packb(self.to_dict(), use_bin_type=True)
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any]):
+        for name, typ in cls.FIELDS.items():
+            if name not in d:
+                raise WireError(f"{cls.TYPE}: missing field {name!r}")
+            if not _CHECKS[typ](d[name]):
+                raise WireError(f"{cls.TYPE}.{name} = {d[name]!r} is not a {typ}")
+        return cls(**{k: d[k] for k in cls.FIELDS})
+
+
+@dataclass(frozen=True)
+class Obs(_Record):
+    """Simulator -> one robot: its pose estimate and sensors at tick k (key robot/<name>/obs)."""
+
+    TYPE: ClassVar[str] = "obs"
+    FIELDS: ClassVar[dict[str, str]] = {"k": "int", "t": "float", "pose": "floats", "ranges": "floats?"}
+    k: int
+    t: float
+    pose: list[float]
+    ranges: list[float] | None = None
+
+
+@dataclass(frozen=True)
+class Command(_Record):
+    """Robot -> simulator: body velocities for tick k (key robot/<name>/cmd)."""
+
+    TYPE: ClassVar[str] = "cmd"
+    FIELDS: ClassVar[dict[str, str]] = {"k": "int", "t": "float", "cmd": "floats", "solve_ms": "float"}
+    k: int
+    t: float
+    cmd: list[float]
+    solve_ms: float = 0.0
+
+
+@dataclass(frozen=True)
+class Telemetry(_Record):
+    """Robot -> recorder: the controller's per-step telemetry (key robot/<name>/telemetry)."""
+
+    TYPE: ClassVar[str] = "telemetry"
+    FIELDS: ClassVar[dict[str, str]] = {"k": "int", "t": "float", "data": "dict"}
+    k: int
+    t: float
+    data: dict[str, Any]
+
+
+@dataclass(frozen=True)
+class Truth(_Record):
+    """Simulator -> recorder: the world at tick k (key sim/truth). Robots never read it."""
+
+    TYPE: ClassVar[str] = "truth"
+    FIELDS: ClassVar[dict[str, str]] = {
+        "k": "int",
+        "t": "float",
+        "names": "strs",
+        "poses": "matrix",
+        "commands": "matrix",
+        "violated": "bools",
+        "wheel_max": "floats",
+        "clearance": "floats?",
+        "obstacles": "any",
+    }
+    k: int
+    t: float
+    names: list[str]
+    poses: list[list[float]]
+    commands: list[list[float]]
+    """Commands applied over [t, t + dt] after saturation."""
+    violated: list[bool]
+    """Whether each robot's requested command exceeded its model's limits."""
+    wheel_max: list[float]
+    """Largest wheel rim speed of the applied command [m/s]."""
+    clearance: list[float] | None = None
+    """Distance from each robot's disc to the nearest obstacle [m] (None: no obstacles)."""
+    obstacles: Any = None
+    """Obstacle polygons at t (list of lists of [x, y]) or None."""
+
+
+@dataclass(frozen=True)
+class PeerEnvelope(_Record):
+    """Robot -> robot message (key peer/<sender>/all or peer/<sender>/to/<receiver>)."""
+
+    TYPE: ClassVar[str] = "peer"
+    FIELDS: ClassVar[dict[str, str]] = {
+        "sender": "str",
+        "seq": "int",
+        "stamp": "float",
+        "kind": "str",
+        "pos": "floats",
+        "payload": "dict",
+    }
+    sender: str
+    seq: int
+    """Per-sender sequence number (counts every message the sender published)."""
+    stamp: float
+    """Sender's clock [s]."""
+    kind: str
+    pos: list[float]
+    """Sender's own position estimate [x, y] (range-limited graphs, Def. 10)."""
+    payload: dict[str, Any]
+
+    @classmethod
+    def from_dict(cls, d):
+        rec = super().from_dict(d)
+        validate_payload(rec.kind, rec.payload)
+        if len(rec.pos) != 2:
+            raise WireError(f"peer.pos = {rec.pos!r} must be [x, y]")
+        return rec
+
+
+@dataclass(frozen=True)
+class Start(_Record):
+    """Simulator -> all: the run starts; wall-clock origin for realtime clocks (key sim/start)."""
+
+    TYPE: ClassVar[str] = "start"
+    FIELDS: ClassVar[dict[str, str]] = {"wall_t0": "float", "dt": "float", "clock": "str"}
+    wall_t0: float
+    dt: float
+    clock: str
+
+
+@dataclass(frozen=True)
+class End(_Record):
+    """Simulator -> all: the run is over (key sim/end)."""
+
+    TYPE: ClassVar[str] = "end"
+    FIELDS: ClassVar[dict[str, str]] = {"k": "int", "t": "float", "reason": "str", "ok": "bool"}
+    k: int
+    t: float
+    reason: str
+    ok: bool = True
+
+
+@dataclass(frozen=True)
+class Event(_Record):
+    """Something worth a line in the log (key <proc>/event): missed ticks, lost robots, rejects."""
+
+    TYPE: ClassVar[str] = "event"
+    FIELDS: ClassVar[dict[str, str]] = {"t": "float", "source": "str", "what": "str", "detail": "dict"}
+    t: float
+    source: str
+    what: str
+    detail: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class Stats(_Record):
+    """A process's closing account (key stats/<proc>)."""
+
+    TYPE: ClassVar[str] = "stats"
+    FIELDS: ClassVar[dict[str, str]] = {"proc": "str", "published": "int", "counters": "dict"}
+    proc: str
+    published: int
+    """Messages this process published under the run prefix, this one excluded."""
+    counters: dict[str, Any] = field(default_factory=dict)
+
+
+RECORD_TYPES: dict[str, type[_Record]] = {
+    c.TYPE: c for c in (Obs, Command, Telemetry, Truth, PeerEnvelope, Start, End, Event, Stats)
+}
+
+
+def unpack(data: bytes | bytearray | memoryview):
+    """Decode and validate any record; raises WireError."""
+    try:
+        d = msgpack.unpackb(bytes(data), raw=False)
+    except Exception as exc:  # msgpack raises several exception types
+        raise WireError(f"not a msgpack record: {exc}") from None
+    if not isinstance(d, dict):
+        raise WireError("record must be a msgpack map")
+    if d.get("v") != WIRE_VERSION:
+        raise WireError(f"wire version {d.get('v')!r} is not supported (expected {WIRE_VERSION})")
+    cls = RECORD_TYPES.get(d.get("type"))
+    if cls is None:
+        raise WireError(f"unknown record type {d.get('type')!r}")
+    return cls.from_dict(d)
+
+
+def finite(x: float) -> bool:
+    return isinstance(x, (int, float)) and math.isfinite(x)

@@ -1,0 +1,301 @@
+"""metrics.json: the machine-readable result of a run, computed from its message log.
+
+The same function serves a real run (records read back from ``run.mcap``) and an
+in-process run (records kept in memory), so a run's figures are always explainable
+from its log. Keys are a public contract: add keys, never rename; a figure that does not
+apply to a scenario is ``null``.
+
+Definitions (errors are taken after ``run.settle_s``):
+- path error: distance from the simulator's true position to the controller's reference
+  point ``ref`` at the same instant; heading error: |wrap(theta - theta_ref)|;
+  steps flagged ``in_transition`` are left out;
+- coordination error: max over robot pairs (all pairs, or graph edges with
+  ``[metrics] coordination_pairs = "edges"``) of |xi_i - xi_j| (modulo ``xi_period``),
+  with each robot's xi interpolated onto the simulator's ticks;
+- min separation: smallest centre distance between two robots; a collision is the
+  onset of an overlap of two robot discs, or of a disc with an obstacle.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from copath.scenario import Scenario
+from copath.wire.keys import Keys
+from copath.wire.messages import Command, End, Event, Stats, Telemetry, Truth
+
+__all__ = ["RobotTrace", "Trace", "trace_from_records", "compute_metrics", "METRIC_KEYS"]
+
+ROBOT_KEYS = (
+    "path_error_max_m",
+    "path_error_rms_m",
+    "heading_error_max_rad",
+    "speed_error_rms_mps",
+    "solve_ms_p50",
+    "solve_ms_p99",
+    "limit_violations",
+    "missed_ticks",
+    "wheel_speed_max_mps",
+    "solver_failures",
+    "control_effort",
+)
+FLEET_KEYS = (
+    "coordination_error_max_m",
+    "coordination_error_rms_m",
+    "min_separation_m",
+    "collisions",
+    "messages_published",
+    "messages_recorded",
+    "messages_dropped_by_faults",
+    "tasks_completed",
+    "tasks_total",
+    "task_times_s",
+    "assignment_cost",
+    "assignment_cost_optimal",
+    "conflicts_resolved",
+    "min_obstacle_clearance_m",
+    "formation_error_max_m",
+)
+METRIC_KEYS = {"robots": ROBOT_KEYS, "fleet": FLEET_KEYS}
+
+
+@dataclass
+class RobotTrace:
+    """What the log says about one robot."""
+
+    t: np.ndarray
+    """(n,) simulator tick times [s]."""
+    pose: np.ndarray
+    """(n, 3) true poses."""
+    command: np.ndarray
+    """(n, k) applied commands."""
+    violated: np.ndarray
+    wheel_max: np.ndarray
+    clearance: np.ndarray | None
+    telemetry_t: np.ndarray
+    """(m,) controller step times [s]."""
+    telemetry: list[dict]
+    solve_ms: np.ndarray
+    radius: float = 0.0
+
+    def pose_at(self, times: np.ndarray) -> np.ndarray:
+        """True pose interpolated at ``times`` (heading unwrapped first)."""
+        if len(self.t) == 0:
+            return np.full((len(times), 3), np.nan)
+        th = np.unwrap(self.pose[:, 2])
+        return np.stack([np.interp(times, self.t, self.pose[:, 0]), np.interp(times, self.t, self.pose[:, 1]),
+                         np.interp(times, self.t, th)], axis=-1)
+
+
+@dataclass
+class Trace:
+    robots: dict[str, RobotTrace]
+    dt: float
+    stats: dict[str, dict] = field(default_factory=dict)
+    events: list[Event] = field(default_factory=list)
+    end: End | None = None
+    sim_time_s: float = 0.0
+
+
+def trace_from_records(records, keys: Keys, radii: dict[str, float] | None = None) -> Trace:
+    """Build a :class:`Trace` from (log_time_ns, key, record) tuples of one run."""
+    truth: list[Truth] = []
+    tele: dict[str, list[Telemetry]] = {}
+    cmds: dict[str, list[Command]] = {}
+    stats: dict[str, dict] = {}
+    events: list[Event] = []
+    end = None
+    dt = 0.0
+    for _, key, rec in records:
+        rel = keys.relative(key)
+        if isinstance(rec, Truth):
+            truth.append(rec)
+        elif isinstance(rec, Telemetry):
+            tele.setdefault(rel.split("/")[1], []).append(rec)
+        elif isinstance(rec, Command):
+            cmds.setdefault(rel.split("/")[1], []).append(rec)
+        elif isinstance(rec, Stats):
+            stats[rec.proc] = dict(rec.counters)
+        elif isinstance(rec, Event):
+            events.append(rec)
+        elif isinstance(rec, End):
+            end = rec
+        elif getattr(rec, "TYPE", "") == "start":
+            dt = rec.dt
+    truth.sort(key=lambda r: r.k)
+    names = truth[0].names if truth else sorted(set(tele) | set(cmds))
+    robots = {}
+    for i, n in enumerate(names):
+        tt = np.array([r.t for r in truth])
+        pose = np.array([r.poses[i] for r in truth]).reshape(-1, 3)
+        command = np.array([r.commands[i] for r in truth]) if truth else np.zeros((0, 2))
+        violated = np.array([r.violated[i] for r in truth], dtype=bool)
+        wheel = np.array([r.wheel_max[i] for r in truth])
+        clearance = np.array([r.clearance[i] for r in truth]) if truth and truth[0].clearance is not None else None
+        tl = sorted(tele.get(n, []), key=lambda r: (r.t, r.k))
+        robots[n] = RobotTrace(
+            t=tt,
+            pose=pose,
+            command=command,
+            violated=violated,
+            wheel_max=wheel,
+            clearance=clearance,
+            telemetry_t=np.array([r.t for r in tl]),
+            telemetry=[r.data for r in tl],
+            solve_ms=np.array([c.solve_ms for c in cmds.get(n, [])]),
+            radius=(radii or {}).get(n, 0.0),
+        )
+    sim_time = float(truth[-1].t + dt) if truth else 0.0
+    return Trace(robots, dt, stats, events, end, sim_time)
+
+
+def _f(x) -> float | None:
+    return None if x is None or not np.isfinite(x) else round(float(x), 6)
+
+
+def _robot_metrics(rt: RobotTrace, settle: float, model_kind: str, missed: int) -> dict[str, Any]:
+    m: dict[str, Any] = dict.fromkeys(ROBOT_KEYS)
+    tel_t = rt.telemetry_t
+    refs = [(t, d["ref"], d.get("in_transition", False)) for t, d in zip(tel_t, rt.telemetry)
+            if d.get("ref") is not None and t >= settle - 1e-9]
+    refs = [(t, r) for t, r, tr in refs if not tr]
+    if refs and len(rt.t):
+        times = np.array([t for t, _ in refs])
+        ref = np.array([r for _, r in refs], dtype=float)
+        p = rt.pose_at(times)
+        e = np.hypot(p[:, 0] - ref[:, 0], p[:, 1] - ref[:, 1])
+        m["path_error_max_m"] = _f(e.max())
+        m["path_error_rms_m"] = _f(np.sqrt(np.mean(e**2)))
+        if ref.shape[1] >= 3:
+            he = np.abs(np.arctan2(np.sin(p[:, 2] - ref[:, 2]), np.cos(p[:, 2] - ref[:, 2])))
+            m["heading_error_max_rad"] = _f(he.max())
+    se = [d["speed_error"] for t, d in zip(tel_t, rt.telemetry)
+          if d.get("speed_error") is not None and t >= settle - 1e-9]
+    if se:
+        m["speed_error_rms_mps"] = _f(np.sqrt(np.mean(np.square(se))))
+    if len(rt.solve_ms):
+        m["solve_ms_p50"] = _f(np.percentile(rt.solve_ms, 50))
+        m["solve_ms_p99"] = _f(np.percentile(rt.solve_ms, 99))
+    m["limit_violations"] = int(rt.violated.sum())
+    m["missed_ticks"] = int(missed)
+    if model_kind == "omni" and len(rt.wheel_max):
+        m["wheel_speed_max_mps"] = _f(rt.wheel_max.max())
+    m["solver_failures"] = int(sum(1 for d in rt.telemetry if d.get("solver_ok") is False))
+    if len(rt.command) > 1 and len(rt.t) > 1:
+        # integral of the squared applied command over the run: sum |u|^2 dt
+        dts = np.diff(rt.t, append=rt.t[-1] + (rt.t[-1] - rt.t[-2]))
+        m["control_effort"] = _f(float(np.sum(np.sum(rt.command**2, axis=1) * dts)))
+    return m
+
+
+def _coordination(trace: Trace, scenario: Scenario, settle: float):
+    xs = {}
+    period = 0.0
+    for n, rt in trace.robots.items():
+        pts = [(t, d["xi"]) for t, d in zip(rt.telemetry_t, rt.telemetry) if d.get("xi") is not None]
+        if pts:
+            xs[n] = np.array(pts, dtype=float)
+            period = max(period, max(float(d.get("xi_period") or 0.0) for d in rt.telemetry if "xi" in d))
+    if len(xs) < 2:
+        return None, None
+    ref = next(iter(trace.robots.values()))
+    grid = ref.t[ref.t >= settle - 1e-9]
+    lo = max(a[0, 0] for a in xs.values())
+    hi = min(a[-1, 0] for a in xs.values())
+    grid = grid[(grid >= lo - 1e-9) & (grid <= hi + 1e-9)]
+    if len(grid) == 0:
+        return None, None
+    vals = {n: np.interp(grid, a[:, 0], a[:, 1]) for n, a in xs.items()}
+    if scenario.metrics.get("coordination_pairs", "all") == "edges":
+        pairs = [(a, b) for a, b in scenario.edges() if a in vals and b in vals]
+    else:
+        pairs = list(itertools.combinations(sorted(vals), 2))
+    if not pairs:
+        return None, None
+    err = np.zeros(len(grid))
+    for a, b in pairs:
+        d = vals[a] - vals[b]
+        if period > 0:
+            d = d - period * np.round(d / period)
+        err = np.maximum(err, np.abs(d))
+    return _f(err.max()), _f(np.sqrt(np.mean(err**2)))
+
+
+def _separation(trace: Trace, scenario: Scenario):
+    names = list(trace.robots)
+    radii = {r.name: r.model.radius for r in scenario.robots}
+    if len(names) < 2:
+        return None, 0
+    n_t = min(len(trace.robots[n].t) for n in names)
+    if n_t == 0:
+        return None, 0
+    P = np.stack([trace.robots[n].pose[:n_t, :2] for n in names], axis=1)  # (T, R, 2)
+    D = np.linalg.norm(P[:, :, None, :] - P[:, None, :, :], axis=-1)
+    iu = np.triu_indices(len(names), 1)
+    d = D[:, iu[0], iu[1]]  # (T, pairs)
+    lim = np.array([radii[names[i]] + radii[names[j]] for i, j in zip(*iu)])
+    overlap = d < lim
+    onsets = overlap[0].sum() + np.logical_and(overlap[1:], ~overlap[:-1]).sum()
+    return _f(d.min()), int(onsets)
+
+
+def compute_metrics(
+    trace: Trace,
+    scenario: Scenario,
+    *,
+    run_id: str,
+    clock: str,
+    wall_time_s: float,
+    messages_published: int | None,
+    messages_recorded: int | None,
+) -> dict[str, Any]:
+    """The metrics.json object of a run."""
+    settle = scenario.run.settle_s
+    missed = trace.stats.get("sim", {}).get("missed_ticks", {}) or {}
+    robots = {}
+    for r in scenario.robots:
+        rt = trace.robots.get(r.name)
+        if rt is None:
+            robots[r.name] = dict.fromkeys(ROBOT_KEYS)
+            continue
+        robots[r.name] = _robot_metrics(rt, settle, r.model.kind, missed.get(r.name, 0))
+    fleet: dict[str, Any] = dict.fromkeys(FLEET_KEYS)
+    fleet["coordination_error_max_m"], fleet["coordination_error_rms_m"] = _coordination(trace, scenario, settle)
+    fleet["min_separation_m"], collisions = _separation(trace, scenario)
+    clearances = [rt.clearance for rt in trace.robots.values() if rt.clearance is not None and len(rt.clearance)]
+    if clearances:
+        fleet["min_obstacle_clearance_m"] = _f(min(c.min() for c in clearances))
+        for c in clearances:
+            hit = c < 0
+            collisions += int(hit[0]) + int(np.logical_and(hit[1:], ~hit[:-1]).sum())
+    fleet["collisions"] = int(collisions)
+    fleet["messages_published"] = messages_published
+    fleet["messages_recorded"] = messages_recorded
+    fleet["messages_dropped_by_faults"] = int(
+        sum(int(s.get("dropped_by_faults", 0)) + int(s.get("partitioned", 0)) for s in trace.stats.values())
+    )
+    fe = [d["formation_error"] for rt in trace.robots.values() for t, d in zip(rt.telemetry_t, rt.telemetry)
+          if d.get("formation_error") is not None and t >= settle - 1e-9 and not d.get("in_transition", False)]
+    if fe:
+        fleet["formation_error_max_m"] = _f(max(fe))
+    if any(r.controller == "roles" for r in scenario.robots):
+        from .metrics_roles import roles_metrics  # noqa: PLC0415
+
+        fleet.update(roles_metrics(trace, scenario))
+    return {
+        "scenario": scenario.id,
+        "title": scenario.title,
+        "run_id": run_id,
+        "clock": clock,
+        "seed": scenario.run.seed,
+        "sim_time_s": _f(trace.sim_time_s),
+        "wall_time_s": _f(wall_time_s),
+        "settle_s": scenario.run.settle_s,
+        "robots": robots,
+        "fleet": fleet,
+    }

@@ -92,6 +92,8 @@ class RobotRuntime:
         self.inbox = FaultyInbox(self.faults)
         self.counters = Counters()
         self.seq = 0
+        self.sent: dict[str, int] = {"*": 0}
+        self.received_from: dict[str, int] = {}
         self.sensors = scenario.sensors
         self._angles = sensor_angles(scenario.sensors.count) if scenario.sensors.enabled else None
         self._cmd_size = spec.model.command_size
@@ -100,11 +102,26 @@ class RobotRuntime:
     def subscriptions(self) -> list[str]:
         return self.keys.peer_subscriptions(self.name, self.neighbours)
 
+    def missing(self, expect: dict[str, int] | None) -> dict[str, int]:
+        """Senders (among those this robot listens to) whose messages have not all
+        arrived yet, with how many are missing (the lockstep barrier)."""
+        if not expect:
+            return {}
+        out = {}
+        for sender, n in expect.items():
+            if sender == self.name or (self.neighbours is not None and sender not in self.neighbours):
+                continue
+            got = self.received_from.get(sender, 0)
+            if got < n:
+                out[sender] = n - got
+        return out
+
     def receive(self, env: PeerEnvelope) -> None:
         """Accept a peer envelope that arrived (before faults)."""
         if env.sender == self.name:
             return
         self.counters.received += 1
+        self.received_from[env.sender] = self.received_from.get(env.sender, 0) + 1
         if not self.inbox.push(env.sender, env.stamp, env):
             self.counters.dropped_by_faults = self.faults.dropped
             self.counters.partitioned = self.faults.partitioned
@@ -113,7 +130,8 @@ class RobotRuntime:
         """Run one control instant at controller time ``now`` with the latest observation."""
         pose = np.asarray(obs.pose, dtype=float)
         inbox = []
-        for env in self.inbox.pop_ready(now):
+        # a deterministic order whatever the arrival order (sums over neighbours stay bitwise equal)
+        for env in sorted(self.inbox.pop_ready(now), key=lambda e: (e.stamp, e.sender, e.seq)):
             if self.comm_range > 0 and math.hypot(env.pos[0] - pose[0], env.pos[1] - pose[1]) > self.comm_range:
                 self.counters.out_of_range += 1
                 continue
@@ -148,11 +166,13 @@ class RobotRuntime:
                                to_plain(dict(m.payload)))
             if m.to is None:
                 peers.append((self.keys.peer_broadcast(self.name), env))
+                self.sent["*"] += 1
             else:
                 for r in m.to:
                     peers.append((self.keys.peer_direct(self.name, r), env))
+                    self.sent[r] = self.sent.get(r, 0) + 1
         return StepOutput(
-            Command(obs.k, float(now), cmd, solve_ms),
+            Command(obs.k, float(now), cmd, solve_ms, dict(self.sent)),
             peers,
             Telemetry(obs.k, float(now), to_plain(telemetry)),
         )

@@ -206,7 +206,7 @@ class Scenario:
         return parse_scenario(raw, base_dir=None, source=self.source)
 
 
-_TOP_KEYS = {"id", "title", "run", "network", "noise", "sensors", "paths", "controller", "robots",
+_TOP_KEYS = {"_source", "id", "title", "run", "network", "noise", "sensors", "paths", "controller", "robots",
              "obstacles", "metrics", "notes"}
 
 
@@ -360,6 +360,12 @@ def load_scenario(path: str | pathlib.Path) -> Scenario:
     path = pathlib.Path(path)
     if not path.is_file():
         raise ConfigError(f"scenario file {str(path)!r} does not exist")
+    if path.suffix == ".json":  # an effective scenario written by the orchestrator
+        try:
+            raw = json.loads(path.read_text())
+        except json.JSONDecodeError as exc:
+            raise ConfigError(f"{path.name}: not valid JSON: {exc}") from exc
+        return parse_scenario(raw, base_dir=path.parent, source=str(raw.get("_source", path.name)))
     try:
         raw = tomllib.loads(path.read_text())
     except tomllib.TOMLDecodeError as exc:

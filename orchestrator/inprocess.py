@@ -60,12 +60,13 @@ def run_scenario(scenario: Scenario, duration_s: float | None = None, run_id: st
 
     publish(0.0, keys.start, Start(0.0, dt, "lockstep"))
     n_ticks = int(round(duration / dt))
+    sent: dict[str, dict[str, int]] = {}
     for k in range(n_ticks):
         t = k * dt
         world.t = t
         outs = {}
         for n, rt in robots.items():
-            obs = world.observe(n, k)
+            obs = world.observe(n, k, sent)
             publish(t, keys.obs(n), obs)
             outs[n] = rt.step(obs, t)
         for n, out in outs.items():
@@ -77,6 +78,7 @@ def run_scenario(scenario: Scenario, duration_s: float | None = None, run_id: st
             publish(t, keys.cmd(n), out.command)
             publish(t, keys.telemetry(n), out.telemetry)
             world.command(n, out.command.cmd)
+            sent[n] = out.command.sent
         world.saturate_all()
         publish(t, keys.truth, world.truth(k))
         world.advance(dt)

@@ -72,7 +72,9 @@ class World:
         t = self.t if t is None else t
         return [o.at(t) for o in self._obstacles]
 
-    def observe(self, name: str, k: int) -> Obs:
+    def observe(self, name: str, k: int, sent: dict[str, dict[str, int]] | None = None) -> Obs:
+        """Observation of robot ``name`` at tick k; ``sent`` (each robot's latest
+        ``Command.sent``) gives the lockstep barrier of peer messages to wait for."""
         pose = self.poses[name].copy()
         std = np.asarray(self.scenario.noise.pose_std)
         if np.any(std > 0):
@@ -94,7 +96,10 @@ class World:
                 r[finite] += self._noise_rng.normal(0.0, self.scenario.noise.range_std, int(finite.sum()))
             r = np.where(np.isfinite(r), np.clip(r, 0.0, self.sensors.max_range_m), np.inf)
             ranges = [float(v) for v in r]
-        return Obs(k, float(self.t), [float(v) for v in pose], ranges)
+        expect = None
+        if sent is not None:
+            expect = {s: int(c.get("*", 0)) + int(c.get(name, 0)) for s, c in sent.items() if s != name}
+        return Obs(k, float(self.t), [float(v) for v in pose], ranges, expect)
 
     def truth(self, k: int) -> Truth:
         clearance = None

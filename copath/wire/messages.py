@@ -123,11 +123,15 @@ class Obs(_Record):
     """Simulator -> one robot: its pose estimate and sensors at tick k (key robot/<name>/obs)."""
 
     TYPE: ClassVar[str] = "obs"
-    FIELDS: ClassVar[dict[str, str]] = {"k": "int", "t": "float", "pose": "floats", "ranges": "floats?"}
+    FIELDS: ClassVar[dict[str, str]] = {"k": "int", "t": "float", "pose": "floats", "ranges": "floats?",
+                                        "expect": "any"}
     k: int
     t: float
     pose: list[float]
     ranges: list[float] | None = None
+    expect: dict[str, int] | None = None
+    """Lockstep barrier: how many peer messages each sender had sent this robot's way
+    (broadcasts plus direct ones) by the end of the previous tick."""
 
 
 @dataclass(frozen=True)
@@ -135,11 +139,14 @@ class Command(_Record):
     """Robot -> simulator: body velocities for tick k (key robot/<name>/cmd)."""
 
     TYPE: ClassVar[str] = "cmd"
-    FIELDS: ClassVar[dict[str, str]] = {"k": "int", "t": "float", "cmd": "floats", "solve_ms": "float"}
+    FIELDS: ClassVar[dict[str, str]] = {"k": "int", "t": "float", "cmd": "floats", "solve_ms": "float",
+                                        "sent": "dict"}
     k: int
     t: float
     cmd: list[float]
     solve_ms: float = 0.0
+    sent: dict[str, int] = field(default_factory=dict)
+    """Peer messages sent so far: ``"*"`` broadcasts, and per receiver name direct ones."""
 
 
 @dataclass(frozen=True)

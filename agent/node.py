@@ -1,0 +1,167 @@
+"""One robot process: Zenoh in -> controller step -> Zenoh out.
+
+The process subscribes only to its own observation key and its neighbours' message keys
+(every robot's on a range-limited graph, where its runtime drops what comes from beyond
+range), declares a liveliness token once it is ready, and then:
+
+- ``lockstep``: steps once per observation, at the observation's time;
+- ``realtime``: steps on its own timer at ``1/run.dt`` with the newest observation and
+  the wall clock synchronised once at start (``sim/start``), like the dissertation's
+  robots.
+
+Peer messages are published before the command of the same step, so in lockstep they
+reach the router before the simulator can start the next tick.
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import logging
+import queue
+import sys
+import threading
+import time
+
+from copath.scenario import ConfigError, load_scenario
+from copath.wire.cli import add_config_arguments, session_config_from_args
+from copath.wire.keys import Keys
+from copath.wire.messages import End, Obs, PeerEnvelope, Start, Stats
+from copath.wire.session import ZenohLink
+
+from .runtime import RobotRuntime
+
+logger = logging.getLogger("copath.agent")
+
+__all__ = ["AgentNode", "main"]
+
+
+class AgentNode:
+    def __init__(self, runtime: RobotRuntime, keys: Keys, link: ZenohLink, clock: str) -> None:
+        self.rt = runtime
+        self.keys = keys
+        self.link = link
+        self.clock = clock
+        self.obs_q: queue.Queue = queue.Queue()
+        self.latest_obs: Obs | None = None
+        self.peers: collections.deque = collections.deque()
+        self.started = threading.Event()
+        self.ended = threading.Event()
+        self.wall_t0 = 0.0
+        self.barrier_timeout_s = 5.0
+
+    def _on_obs(self, key: str, rec) -> None:
+        if isinstance(rec, Obs):
+            self.latest_obs = rec
+            self.obs_q.put(rec)
+
+    def _on_peer(self, key: str, rec) -> None:
+        if isinstance(rec, PeerEnvelope):
+            self.peers.append(rec)
+
+    def _on_sim(self, key: str, rec) -> None:
+        if isinstance(rec, Start):
+            self.wall_t0 = rec.wall_t0
+            self.started.set()
+        elif isinstance(rec, End):
+            self.ended.set()
+            self.obs_q.put(None)
+
+    def _on_sim_alive(self, key: str, alive: bool) -> None:
+        if not alive and not self.ended.is_set():
+            logger.error("the simulator went away; stopping")
+            self.ended.set()
+            self.obs_q.put(None)
+
+    def _await_peers(self, obs: Obs) -> None:
+        """Lockstep barrier: wait until every message the neighbours sent by the end of
+        the previous tick has arrived (``Obs.expect``), so runs are deterministic."""
+        deadline = time.monotonic() + self.barrier_timeout_s
+        self._drain_peers()
+        while self.rt.missing(obs.expect):
+            if time.monotonic() > deadline or self.ended.is_set():
+                late = self.rt.missing(obs.expect)
+                self.rt.counters.extra["barrier_timeouts"] = self.rt.counters.extra.get("barrier_timeouts", 0) + 1
+                logger.warning("tick %d: still missing peer messages %s; stepping without them", obs.k, late)
+                break
+            time.sleep(0.0002)
+            self._drain_peers()
+
+    def _drain_peers(self) -> None:
+        while self.peers:
+            self.rt.receive(self.peers.popleft())
+
+    def _emit(self, out) -> None:
+        name = self.rt.name
+        for key, env in out.peers:
+            self.link.publish(key, env)
+        self.link.publish(self.keys.cmd(name), out.command)
+        self.link.publish(self.keys.telemetry(name), out.telemetry)
+
+    def run(self) -> None:
+        name = self.rt.name
+        self.link.subscribe(self.keys.obs(name), self._on_obs)
+        for key in self.rt.subscriptions:
+            self.link.subscribe(key, self._on_peer)
+        self.link.subscribe(self.keys.start, self._on_sim)
+        self.link.subscribe(self.keys.end, self._on_sim)
+        self.link.watch_liveliness(self.keys.alive("sim"), self._on_sim_alive)
+        self.link.declare_token(self.keys.alive(name))  # ready: subscriptions are in place
+        if self.clock == "lockstep":
+            while True:
+                obs = self.obs_q.get()
+                if obs is None:
+                    break
+                self._await_peers(obs)
+                self._emit(self.rt.step(obs, obs.t))
+        else:
+            while not self.started.wait(timeout=0.5):
+                if self.ended.is_set():
+                    break
+            period = self.rt.dt
+            next_t = time.time()
+            while not self.ended.is_set():
+                obs = self.latest_obs
+                if obs is not None:
+                    self._drain_peers()
+                    now = time.time() - self.wall_t0
+                    self._emit(self.rt.step(obs, now))
+                next_t += period
+                sleep = next_t - time.time()
+                if sleep > 0:
+                    self.ended.wait(timeout=sleep)
+                else:
+                    self.rt.counters.extra["deadline_misses"] = self.rt.counters.extra.get("deadline_misses", 0) + 1
+                    next_t = time.time()
+        counters = self.rt.closing_counters()
+        counters["rejects"] = self.link.rejects
+        self.link.publish(self.keys.stats(name), Stats(name, self.link.published, counters))
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="copath agent", description="Run one robot of a copath run.")
+    p.add_argument("--run-id", required=True)
+    p.add_argument("--robot", required=True, help="robot name in the scenario")
+    p.add_argument("--config", required=True, help="scenario file (.toml, or the run's scenario.json)")
+    p.add_argument("-v", "--verbose", action="store_true")
+    add_config_arguments(p)
+    args = p.parse_args(argv)
+    logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO,
+                        format=f"%(asctime)s {args.robot} %(levelname)s %(message)s")
+    try:
+        scenario = load_scenario(args.config)
+        keys = Keys(args.run_id)
+        scenario.robot(args.robot)
+        conf = session_config_from_args(args)
+        runtime = RobotRuntime(scenario, args.robot, keys)  # builds the controller (and solvers) once
+    except (ConfigError, ValueError) as exc:
+        print(f"copath agent: {exc}", file=sys.stderr)
+        return 2
+    with ZenohLink.open(conf) as link:
+        AgentNode(runtime, keys, link, scenario.run.clock).run()
+        time.sleep(0.2)  # let the router forward the closing record before the session closes
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

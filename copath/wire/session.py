@@ -1,0 +1,196 @@
+"""The one Zenoh session factory and link of copath (nothing else opens a session).
+
+Isolation (FIELD_NOTES): multicast scouting is always off; by default sessions listen
+and connect on loopback only, on a port chosen per run, so two runs on one machine
+never hear each other. The orchestrator hosts the run's router itself (a Python
+session in ``router`` mode: no zenohd to install or start); simulator and agents
+connect to it as clients. ``--connect``/``--listen`` endpoints allow multi-host runs.
+
+Pitfalls handled here: a subscriber still declared at interpreter exit hangs the
+process, so :class:`ZenohLink` undeclares everything in ``close()`` (use it as a
+context manager); callbacks catch their own exceptions and count rejects; records that
+must not be lost are published with congestion control BLOCK.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import socket
+import threading
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+import zenoh
+
+from .messages import WireError, unpack
+
+logger = logging.getLogger(__name__)
+
+__all__ = ["SessionConfig", "open_session", "free_port", "ZenohLink", "loopback_endpoint"]
+
+MODES = ("client", "peer", "router")
+
+
+def free_port() -> int:
+    """A free TCP port on the loopback interface."""
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def loopback_endpoint(port: int) -> str:
+    return f"tcp/127.0.0.1:{port}"
+
+
+@dataclass(frozen=True)
+class SessionConfig:
+    """How a process joins a run's Zenoh network."""
+
+    mode: str = "client"
+    """``client`` (default: through the run's router), ``peer`` or ``router``."""
+    connect: tuple[str, ...] = ()
+    """Endpoints to connect to, e.g. ``tcp/127.0.0.1:7447``."""
+    listen: tuple[str, ...] = ()
+    """Endpoints to listen on (routers; loopback unless a deployment names others)."""
+    lease_ms: int | None = 1000
+    """Transport lease: a frozen process loses its liveliness within about this time."""
+    extra: tuple[tuple[str, str], ...] = field(default_factory=tuple)
+    """Further ``(key, json5 value)`` entries of the Zenoh config (``--cfg KEY:VALUE``)."""
+    config_file: str | None = None
+    """A Zenoh JSON5 config file to start from (``--zenoh-config``)."""
+
+    def __post_init__(self) -> None:
+        if self.mode not in MODES:
+            raise ValueError(f"zenoh mode = {self.mode!r} is not allowed; allowed: {', '.join(MODES)}")
+        for e in self.connect + self.listen:
+            if "/" not in e:
+                raise ValueError(f"endpoint = {e!r} is not allowed; expected PROTO/ADDR:PORT, e.g. tcp/127.0.0.1:7447")
+        if self.mode == "client" and not self.connect:
+            raise ValueError("a client session needs at least one connect endpoint (--connect)")
+
+    def to_zenoh(self) -> zenoh.Config:
+        conf = zenoh.Config.from_file(self.config_file) if self.config_file else zenoh.Config()
+        conf.insert_json5("mode", json.dumps(self.mode))
+        conf.insert_json5("scouting/multicast/enabled", "false")
+        conf.insert_json5("scouting/delay", "0")
+        conf.insert_json5("connect/endpoints", json.dumps(list(self.connect)))
+        conf.insert_json5("listen/endpoints", json.dumps(list(self.listen)))
+        if self.mode == "client":
+            # keep retrying the router instead of failing at once (FIELD_NOTES)
+            conf.insert_json5("connect/timeout_ms", "-1")
+        if self.lease_ms:
+            conf.insert_json5("transport/link/tx/lease", str(int(self.lease_ms)))
+        for k, v in self.extra:
+            conf.insert_json5(k, v)
+        return conf
+
+
+def open_session(conf: SessionConfig) -> zenoh.Session:
+    return zenoh.open(conf.to_zenoh())
+
+
+Callback = Callable[[str, Any], None]
+
+
+class ZenohLink:
+    """Publishes and receives copath records on one session; counts what it published.
+
+    ``publish`` keeps one declared publisher per key (congestion control BLOCK, so
+    nothing is dropped by the publisher). Subscribers decode and validate records in
+    the Zenoh callback thread and hand them to ``callback(key, record)``; a record that
+    fails validation, or a callback that raises, is counted in ``rejects``.
+    """
+
+    def __init__(self, session: zenoh.Session) -> None:
+        self.session = session
+        self.published = 0
+        self.rejects = 0
+        self._pubs: dict[str, Any] = {}
+        self._decls: list[Any] = []
+        self._lock = threading.Lock()
+        self._closed = False
+
+    @classmethod
+    def open(cls, conf: SessionConfig) -> "ZenohLink":
+        return cls(open_session(conf))
+
+    def __enter__(self) -> "ZenohLink":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def publish(self, key: str, record: Any) -> None:
+        self.publish_bytes(key, record.pack())
+
+    def publish_bytes(self, key: str, data: bytes) -> None:
+        with self._lock:
+            pub = self._pubs.get(key)
+            if pub is None:
+                pub = self.session.declare_publisher(key, congestion_control=zenoh.CongestionControl.BLOCK)
+                self._pubs[key] = pub
+            pub.put(data)
+            self.published += 1
+
+    def subscribe(self, key_expr: str, callback: Callback) -> None:
+        """Decode every sample on key_expr and call ``callback(key, record)``."""
+
+        def handler(sample: zenoh.Sample) -> None:
+            try:
+                rec = unpack(sample.payload.to_bytes())
+                callback(str(sample.key_expr), rec)
+            except WireError as exc:
+                self.rejects += 1
+                logger.warning("rejected message on %s: %s", sample.key_expr, exc)
+            except Exception:  # never let a callback die silently in a loop
+                self.rejects += 1
+                logger.exception("subscriber callback failed on %s", sample.key_expr)
+
+        self._decls.append(self.session.declare_subscriber(key_expr, handler))
+
+    def subscribe_raw(self, key_expr: str, callback: Callable[[str, bytes], None]) -> None:
+        """Call ``callback(key, payload_bytes)`` for every sample (the recorder)."""
+
+        def handler(sample: zenoh.Sample) -> None:
+            try:
+                callback(str(sample.key_expr), sample.payload.to_bytes())
+            except Exception:
+                self.rejects += 1
+                logger.exception("raw subscriber callback failed on %s", sample.key_expr)
+
+        self._decls.append(self.session.declare_subscriber(key_expr, handler))
+
+    def declare_token(self, key: str) -> None:
+        """Liveliness token: disappears within milliseconds when the process dies."""
+        self._decls.append(self.session.liveliness().declare_token(key))
+
+    def watch_liveliness(self, key_expr: str, callback: Callable[[str, bool], None]) -> None:
+        """Call ``callback(key, alive)`` when a token appears (True) or disappears (False)."""
+
+        def handler(sample: zenoh.Sample) -> None:
+            try:
+                callback(str(sample.key_expr), sample.kind == zenoh.SampleKind.PUT)
+            except Exception:
+                logger.exception("liveliness callback failed on %s", sample.key_expr)
+
+        self._decls.append(self.session.liveliness().declare_subscriber(key_expr, history=True, handler=handler))
+
+    def close(self) -> None:
+        if self._closed:
+            return
+        self._closed = True
+        for d in reversed(self._decls):
+            try:
+                d.undeclare()
+            except Exception:  # already gone with a dead router
+                pass
+        for p in self._pubs.values():
+            try:
+                p.undeclare()
+            except Exception:
+                pass
+        try:
+            self.session.close()
+        except Exception:
+            pass

@@ -1,0 +1,251 @@
+"""Spawn a run: the router (in this process), the recorder, the simulator and one process per robot.
+
+Lifecycle of ``copath run``:
+
+1. validate the scenario with the CLI overrides and write it to ``DIR/scenario.json``
+   (the exact scenario every process loads);
+2. open the run's Zenoh router on a free loopback port (multicast scouting off) and
+   subscribe the recorder to ``copath/<run_id>/**`` before anything is started;
+3. start ``python -m sim`` and ``python -m agent`` per robot, each in its own process
+   group, logs in ``DIR/logs/``;
+4. watch: progress from the recorded truth; a child that dies before the end fails
+   the run with a one-line reason; Ctrl-C and the wall-clock limit too;
+5. tear down every child by process group (SIGTERM, then SIGKILL), finish the MCAP,
+   read it back and compute ``metrics.json`` from it.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import pathlib
+import signal
+import subprocess
+import sys
+import time
+import uuid
+from dataclasses import dataclass, field
+from typing import Any
+
+from copath.scenario import Scenario
+from copath.wire.keys import Keys
+from copath.wire.session import SessionConfig, ZenohLink, free_port, loopback_endpoint
+
+from .mcaplog import Recorder, read_log, software_version
+from .metrics import compute_metrics, trace_from_records
+
+logger = logging.getLogger(__name__)
+
+__all__ = ["RunOptions", "RunOutcome", "run_fleet", "new_run_id"]
+
+REPO_ROOT = pathlib.Path(__file__).resolve().parents[1]
+
+
+def new_run_id(scenario_id: str) -> str:
+    return f"{scenario_id}-{time.strftime('%Y%m%d-%H%M%S')}-{uuid.uuid4().hex[:6]}"
+
+
+@dataclass
+class RunOptions:
+    out_dir: pathlib.Path
+    run_id: str
+    wall_timeout_s: float | None = None
+    """Give up after this many wall-clock seconds (default: 120 s + 20x the duration)."""
+    start_timeout_s: float = 120.0
+    progress: bool = True
+    connect: tuple[str, ...] = ()
+    """Extra endpoints for the router to connect to (multi-host runs)."""
+    listen: tuple[str, ...] = ()
+    """Router listen endpoints (default: one free loopback port)."""
+
+
+@dataclass
+class RunOutcome:
+    ok: bool
+    reason: str
+    out_dir: pathlib.Path
+    metrics: dict[str, Any] | None = None
+    pids: dict[str, int] = field(default_factory=dict)
+
+
+@dataclass
+class _Child:
+    name: str
+    proc: subprocess.Popen
+    log: Any
+
+
+def _spawn(name: str, argv: list[str], log_path: pathlib.Path) -> _Child:
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join(p for p in (str(REPO_ROOT), env.get("PYTHONPATH", "")) if p)
+    env.setdefault("PYTHONUNBUFFERED", "1")
+    log = log_path.open("wb")
+    proc = subprocess.Popen(argv, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
+                            start_new_session=True, env=env, cwd=str(REPO_ROOT))
+    return _Child(name, proc, log)
+
+
+def _stop(children: list[_Child], grace_s: float = 3.0) -> None:
+    """Terminate every child's process group; escalate to SIGKILL after ``grace_s``."""
+    for c in children:
+        if c.proc.poll() is None:
+            try:
+                os.killpg(c.proc.pid, signal.SIGTERM)
+            except ProcessLookupError:
+                pass
+    deadline = time.monotonic() + grace_s
+    for c in children:
+        try:
+            c.proc.wait(timeout=max(0.05, deadline - time.monotonic()))
+        except subprocess.TimeoutExpired:
+            try:
+                os.killpg(c.proc.pid, signal.SIGKILL)
+            except ProcessLookupError:
+                pass
+            c.proc.wait(timeout=5)
+    for c in children:
+        try:
+            os.killpg(c.proc.pid, signal.SIGKILL)  # stragglers in the group
+        except (ProcessLookupError, PermissionError):
+            pass
+        c.log.close()
+
+
+def _describe_exit(rc: int) -> str:
+    if rc < 0:
+        try:
+            return f"was killed by {signal.Signals(-rc).name}"
+        except ValueError:
+            return f"was killed by signal {-rc}"
+    return f"exited with code {rc}"
+
+
+class _Progress:
+    def __init__(self, duration: float, enabled: bool) -> None:
+        self.duration = duration
+        self.enabled = enabled
+        self.tty = sys.stderr.isatty()
+        self.t0 = time.monotonic()
+        self.last = -1.0
+        self.last_decile = -1
+
+    def update(self, sim_t: float) -> None:
+        if not self.enabled:
+            return
+        frac = min(1.0, max(0.0, sim_t / self.duration))
+        wall = time.monotonic() - self.t0
+        if self.tty:
+            if wall - self.last < 0.2 and frac < 1.0:
+                return
+            self.last = wall
+            bar = "#" * int(30 * frac) + "-" * (30 - int(30 * frac))
+            sys.stderr.write(f"\r  [{bar}] {sim_t:7.1f}/{self.duration:.1f} s sim  {wall:6.1f} s wall")
+            sys.stderr.flush()
+        else:
+            decile = int(frac * 10)
+            if decile > self.last_decile:
+                self.last_decile = decile
+                sys.stderr.write(f"  {int(frac * 100):3d}%  {sim_t:.1f}/{self.duration:.1f} s sim  {wall:.1f} s wall\n")
+
+    def done(self) -> None:
+        if self.enabled and self.tty:
+            sys.stderr.write("\n")
+
+
+def run_fleet(scenario: Scenario, opts: RunOptions) -> RunOutcome:
+    """Run ``scenario`` as separate processes over Zenoh; write run.mcap and metrics.json."""
+    out = pathlib.Path(opts.out_dir)
+    (out / "logs").mkdir(parents=True, exist_ok=True)
+    keys = Keys(opts.run_id)
+    raw = dict(scenario.raw)
+    raw["_source"] = scenario.source
+    scen_path = out / "scenario.json"
+    scen_path.write_text(json.dumps(raw, indent=1))
+    endpoint = loopback_endpoint(free_port())
+    listen = opts.listen or (endpoint,)
+    connect_for_children = [e.replace("0.0.0.0", "127.0.0.1") for e in listen]
+    wall0 = time.monotonic()
+    metadata = {
+        "scenario": {"json": json.dumps(raw), "id": scenario.id, "source": scenario.source},
+        "copath": {"version": software_version(), "run_id": opts.run_id, "clock": scenario.run.clock,
+                   "seed": str(scenario.run.seed), "robots": ",".join(scenario.robot_names),
+                   "python": sys.version.split()[0]},
+    }
+    router = ZenohLink.open(SessionConfig(mode="router", listen=tuple(listen), connect=tuple(opts.connect)))
+    recorder = Recorder(out / "run.mcap", keys, metadata)
+    router.subscribe_raw(keys.all, recorder.write)
+    common = ["--run-id", opts.run_id, "--config", str(scen_path.resolve())]
+    for e in connect_for_children:
+        common += ["--connect", e]
+    children: list[_Child] = []
+    ok, reason = True, "completed"
+    progress = _Progress(scenario.run.duration_s, opts.progress)
+    wall_limit = opts.wall_timeout_s or (120.0 + 20.0 * scenario.run.duration_s)
+    try:
+        children.append(_spawn("sim", [sys.executable, "-m", "sim", *common, "--start-timeout",
+                                       str(opts.start_timeout_s)], out / "logs" / "sim.log"))
+        for name in scenario.robot_names:
+            children.append(_spawn(name, [sys.executable, "-m", "agent", "--robot", name, *common],
+                                   out / "logs" / f"{name}.log"))
+        while True:
+            progress.update(recorder.sim_t)
+            sim = children[0]
+            rc_sim = sim.proc.poll()
+            failed = [c for c in children[1:] if c.proc.poll() is not None and (c.proc.returncode != 0 or rc_sim is None and recorder.end is None)]
+            if failed:
+                c = failed[0]
+                ok, reason = False, (f"robot {c.name} (pid {c.proc.pid}) {_describe_exit(c.proc.returncode)} "
+                                     f"at sim t={recorder.sim_t:.2f} s; see {out / 'logs' / (c.name + '.log')}")
+                break
+            if rc_sim is not None:
+                end = recorder.end
+                if rc_sim != 0 or end is None or not end.ok:
+                    why = end.reason if end is not None else f"the simulator {_describe_exit(rc_sim)}"
+                    ok, reason = False, f"{why} at sim t={recorder.sim_t:.2f} s; see {out / 'logs' / 'sim.log'}"
+                    break
+                # normal end: wait for the robots to send their closing accounts and exit
+                deadline = time.monotonic() + 30.0
+                while time.monotonic() < deadline and any(c.proc.poll() is None for c in children):
+                    time.sleep(0.05)
+                stuck = [c.name for c in children if c.proc.poll() is None]
+                bad = [c for c in children[1:] if c.proc.poll() is not None and c.proc.returncode != 0]
+                if stuck:
+                    ok, reason = False, f"processes {stuck} did not exit after the end of the run"
+                elif bad:
+                    ok, reason = False, f"robot {bad[0].name} {_describe_exit(bad[0].proc.returncode)} at the end of the run"
+                break
+            if time.monotonic() - wall0 > wall_limit:
+                ok, reason = False, f"wall-clock limit of {wall_limit:.0f} s reached at sim t={recorder.sim_t:.2f} s"
+                break
+            time.sleep(0.05)
+    except KeyboardInterrupt:
+        ok, reason = False, f"interrupted (Ctrl-C) at sim t={recorder.sim_t:.2f} s"
+    finally:
+        progress.done()
+        if ok:  # closing accounts may still be in flight through the router
+            expected = {"sim", *scenario.robot_names}
+            deadline = time.monotonic() + 3.0
+            while time.monotonic() < deadline and not expected <= set(recorder.stats):
+                time.sleep(0.02)
+        else:
+            time.sleep(0.3)
+        pids = {c.name: c.proc.pid for c in children}
+        _stop(children)
+        router.close()
+        recorder.finish({"outcome": {"ok": str(ok), "reason": reason}})
+    wall = time.monotonic() - wall0
+    log = read_log(out / "run.mcap")
+    stats = {r.proc: r for _, _, r in log.records if getattr(r, "TYPE", "") == "stats"}
+    published = sum(s.published for s in stats.values())
+    recorded = sum(1 for _, k, _ in log.records if not keys.relative(k).startswith("stats/")) + log.rejected
+    if ok and set(stats) != {"sim", *scenario.robot_names}:
+        missing = sorted({"sim", *scenario.robot_names} - set(stats))
+        ok, reason = False, f"no closing account from {missing}"
+    trace = trace_from_records(log.records, keys)
+    metrics = compute_metrics(trace, scenario, run_id=opts.run_id, clock=scenario.run.clock, wall_time_s=wall,
+                              messages_published=published if ok else None, messages_recorded=recorded)
+    metrics["ok"] = ok
+    metrics["failure"] = None if ok else reason
+    (out / "metrics.json").write_text(json.dumps(metrics, indent=2))
+    return RunOutcome(ok, reason, out, metrics, pids)

@@ -1,0 +1,140 @@
+"""``copath info`` and ``copath replay``: look into a run log, or put it back on Zenoh.
+
+``info`` prints channels, message counts, duration, robots and the scenario (like
+``ros2 bag info``). ``replay`` republishes every recorded message on its original key
+(optionally under another run id) with the original timing scaled by ``speed``, so a
+viewer or another tool can consume a past run live. Without ``--connect`` it hosts its
+own router on a free loopback port and prints the endpoint.
+"""
+
+from __future__ import annotations
+
+import json
+import pathlib
+import sys
+import time
+from dataclasses import dataclass
+
+from mcap.reader import make_reader
+
+from copath.wire.keys import ROOT, valid_run_id
+from copath.wire.session import SessionConfig, ZenohLink, free_port, loopback_endpoint
+
+from .mcaplog import iter_raw
+
+__all__ = ["log_info", "format_info", "replay", "ReplayResult"]
+
+
+def log_info(path: str | pathlib.Path) -> dict:
+    """Summary of a run log as a dict (what ``copath info`` prints)."""
+    path = pathlib.Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"run log {str(path)!r} does not exist")
+    with path.open("rb") as fh:
+        reader = make_reader(fh)
+        summary = reader.get_summary()
+        metadata = {m.name: dict(m.metadata) for m in reader.iter_metadata()}
+    if summary is None or summary.statistics is None:
+        raise ValueError(f"{path.name} has no summary section (was the run interrupted before the log was closed?)")
+    st = summary.statistics
+    channels = {}
+    for cid, ch in summary.channels.items():
+        channels[ch.topic] = st.channel_message_counts.get(cid, 0)
+    scen = json.loads(metadata.get("scenario", {}).get("json", "{}") or "{}")
+    return {
+        "file": path.name,
+        "size_bytes": path.stat().st_size,
+        "messages": st.message_count,
+        "channels": dict(sorted(channels.items())),
+        "start_ns": st.message_start_time,
+        "end_ns": st.message_end_time,
+        "duration_s": (st.message_end_time - st.message_start_time) / 1e9 if st.message_count else 0.0,
+        "run_id": metadata.get("copath", {}).get("run_id"),
+        "version": metadata.get("copath", {}).get("version"),
+        "clock": metadata.get("copath", {}).get("clock"),
+        "robots": [r for r in metadata.get("copath", {}).get("robots", "").split(",") if r],
+        "scenario_id": scen.get("id"),
+        "scenario_title": scen.get("title"),
+        "outcome": metadata.get("outcome", {}),
+        "scenario": scen,
+    }
+
+
+def format_info(info: dict) -> str:
+    lines = [
+        f"Files:        {info['file']}",
+        f"Size:         {info['size_bytes'] / 1024:.1f} KiB",
+        f"Run id:       {info['run_id']}",
+        f"copath:       {info['version']}",
+        f"Scenario:     {info['scenario_id']}  {info['scenario_title'] or ''}",
+        f"Clock:        {info['clock']}",
+        f"Robots:       {', '.join(info['robots'])}",
+        f"Outcome:      {info['outcome'].get('ok', '?')}  {info['outcome'].get('reason', '')}",
+        f"Duration:     {info['duration_s']:.3f} s (wall)",
+        f"Messages:     {info['messages']}",
+        f"Channels:     {len(info['channels'])}",
+    ]
+    width = max((len(k) for k in info["channels"]), default=10)
+    for topic, n in info["channels"].items():
+        lines.append(f"  {topic:<{width}}  {n:>8d} msgs  (msgpack)")
+    return "\n".join(lines)
+
+
+@dataclass
+class ReplayResult:
+    published: int
+    endpoint: str
+    duration_s: float
+
+
+def _rekey(key: str, new_run: str | None) -> str:
+    if not new_run:
+        return key
+    parts = key.split("/", 2)
+    if len(parts) == 3 and parts[0] == ROOT:
+        return f"{ROOT}/{new_run}/{parts[2]}"
+    return key
+
+
+def replay(path: str | pathlib.Path, *, speed: float = 1.0, run_id: str | None = None,
+           connect: tuple[str, ...] = (), listen: tuple[str, ...] = (), start_delay_s: float = 0.5,
+           announce=None) -> ReplayResult:
+    """Republish a run log on Zenoh with its original timing divided by ``speed``."""
+    if not speed > 0:
+        raise ValueError(f"--speed = {speed!r} is not allowed; must be > 0")
+    if run_id:
+        valid_run_id(run_id)
+    path = pathlib.Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"run log {str(path)!r} does not exist")
+    if connect:
+        conf = SessionConfig(mode="client", connect=tuple(connect), listen=tuple(listen))
+        endpoint = connect[0]
+    else:
+        endpoint = listen[0] if listen else loopback_endpoint(free_port())
+        conf = SessionConfig(mode="router", listen=(endpoint,))
+    n = 0
+    with ZenohLink.open(conf) as link:
+        if announce:
+            announce(endpoint)
+        time.sleep(start_delay_s)  # give subscribers a moment to connect
+        t0_wall = time.monotonic()
+        t0_log = None
+        last = 0.0
+        for log_time, key, data in iter_raw(path):
+            if t0_log is None:
+                t0_log = log_time
+            due = (log_time - t0_log) / 1e9 / speed
+            wait = t0_wall + due - time.monotonic()
+            if wait > 0:
+                time.sleep(wait)
+            link.publish_bytes(_rekey(key, run_id), data)
+            n += 1
+            last = due
+        time.sleep(0.2)
+    return ReplayResult(n, endpoint, last)
+
+
+def print_json(obj) -> None:
+    json.dump(obj, sys.stdout, indent=2)
+    sys.stdout.write("\n")

@@ -1,0 +1,195 @@
+"""The simulator process: owns time and the world, talks to the robots over Zenoh.
+
+``lockstep`` clock: tick k+1 starts when every live robot has answered tick k, or after
+``run.tick_timeout_s``, in which case the late robot keeps its last command and the miss
+is counted (and logged as an event). ``realtime`` clock: the world is integrated on the
+wall clock every ``run.physics_dt``; observations and truth go out every ``run.dt``;
+commands are applied when they arrive.
+
+A robot whose liveliness token disappears (its process died) ends the run with a failure
+record, so the orchestrator can report it and the log stays readable.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import queue
+import sys
+import threading
+import time
+
+from copath.scenario import ConfigError, Scenario, load_scenario
+from copath.wire.cli import add_config_arguments, session_config_from_args
+from copath.wire.keys import Keys
+from copath.wire.messages import Command, End, Event, Start, Stats
+from copath.wire.session import SessionConfig, ZenohLink
+
+from .world import World
+
+logger = logging.getLogger("copath.sim")
+
+__all__ = ["SimNode", "main"]
+
+
+class SimNode:
+    def __init__(self, scenario: Scenario, keys: Keys, link: ZenohLink, start_timeout_s: float = 120.0) -> None:
+        self.scenario = scenario
+        self.keys = keys
+        self.link = link
+        self.world = World(scenario)
+        self.names = list(scenario.robot_names)
+        self.start_timeout_s = start_timeout_s
+        self.cmds: queue.Queue = queue.Queue()
+        self.alive: set[str] = set()
+        self.lost: list[str] = []
+        self._alive_cv = threading.Condition()
+        self.missed = {n: 0 for n in self.names}
+        self.stale = 0
+        self.overruns = 0
+        self.sent: dict[str, dict[str, int]] = {}
+
+    # -- callbacks (zenoh threads) ----------------------------------------------------
+    def _on_cmd(self, key: str, rec) -> None:
+        if isinstance(rec, Command):
+            self.cmds.put((self.keys.relative(key).split("/")[1], rec))
+
+    def _on_alive(self, key: str, alive: bool) -> None:
+        name = key.rsplit("/", 1)[-1]
+        with self._alive_cv:
+            if alive:
+                self.alive.add(name)
+            elif name in self.alive:
+                self.alive.discard(name)
+                self.lost.append(name)
+            self._alive_cv.notify_all()
+
+    def _event(self, what: str, **detail) -> None:
+        self.link.publish(self.keys.event("sim"), Event(float(self.world.t), "sim", what, detail))
+
+    # -- run ------------------------------------------------------------------------------
+    def run(self) -> bool:
+        self.link.subscribe(self.keys.all_cmds, self._on_cmd)
+        self.link.watch_liveliness(self.keys.all_alive, self._on_alive)
+        self.link.declare_token(self.keys.alive("sim"))
+        deadline = time.monotonic() + self.start_timeout_s
+        with self._alive_cv:
+            while not set(self.names) <= self.alive:
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    missing = sorted(set(self.names) - self.alive)
+                    logger.error("robots %s did not come up within %.0f s", missing, self.start_timeout_s)
+                    self._finish(0, f"robots {missing} did not start", False)
+                    return False
+                self._alive_cv.wait(timeout=min(left, 0.5))
+        run = self.scenario.run
+        self.link.publish(self.keys.start, Start(time.time(), run.dt, run.clock))
+        if run.clock == "lockstep":
+            k, ok, reason = self._lockstep()
+        else:
+            k, ok, reason = self._realtime()
+        self._finish(k, reason, ok)
+        return ok
+
+    def _lost_reason(self) -> str | None:
+        with self._alive_cv:
+            if self.lost:
+                return f"robot {self.lost[0]} lost (its process stopped)"
+        return None
+
+    def _lockstep(self) -> tuple[int, bool, str]:
+        run = self.scenario.run
+        n_ticks = int(round(run.duration_s / run.dt))
+        for k in range(n_ticks):
+            self.world.t = k * run.dt
+            for n in self.names:
+                self.link.publish(self.keys.obs(n), self.world.observe(n, k, self.sent))
+            waiting = set(self.names)
+            deadline = time.monotonic() + run.tick_timeout_s
+            while waiting:
+                reason = self._lost_reason()
+                if reason:
+                    return k, False, reason
+                try:
+                    name, cmd = self.cmds.get(timeout=min(0.2, max(0.0, deadline - time.monotonic())))
+                except queue.Empty:
+                    if time.monotonic() >= deadline:
+                        for n in sorted(waiting):
+                            self.missed[n] += 1
+                            self._event("missed_tick", robot=n, k=k)
+                        break
+                    continue
+                if cmd.k != k or name not in waiting:
+                    self.stale += 1
+                    continue
+                self.world.command(name, cmd.cmd)
+                self.sent[name] = cmd.sent
+                waiting.discard(name)
+            self.world.saturate_all()
+            self.link.publish(self.keys.truth, self.world.truth(k))
+            self.world.advance(run.dt)
+        return n_ticks, True, "duration reached"
+
+    def _realtime(self) -> tuple[int, bool, str]:
+        run = self.scenario.run
+        t0 = time.monotonic()
+        next_obs = 0.0
+        k = 0
+        t = 0.0
+        while t < run.duration_s - 1e-9:
+            reason = self._lost_reason()
+            if reason:
+                return k, False, reason
+            while True:
+                try:
+                    name, cmd = self.cmds.get_nowait()
+                except queue.Empty:
+                    break
+                self.world.command(name, cmd.cmd)
+            if t >= next_obs - 1e-9:
+                for n in self.names:
+                    self.link.publish(self.keys.obs(n), self.world.observe(n, k))
+                self.world.saturate_all()
+                self.link.publish(self.keys.truth, self.world.truth(k))
+                k += 1
+                next_obs += run.dt
+            self.world.advance(run.physics_dt)
+            t = self.world.t
+            sleep = t0 + t - time.monotonic()
+            if sleep > 0:
+                time.sleep(sleep)
+            else:
+                self.overruns += 1
+        return k, True, "duration reached"
+
+    def _finish(self, k: int, reason: str, ok: bool) -> None:
+        self.link.publish(self.keys.end, End(k, float(self.world.t), reason, ok))
+        counters = {"missed_ticks": self.missed, "stale_commands": self.stale, "physics_overruns": self.overruns, "rejects": self.link.rejects}
+        self.link.publish(self.keys.stats("sim"), Stats("sim", self.link.published, counters))
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="copath sim", description="Run the simulator process of a copath run.")
+    p.add_argument("--run-id", required=True)
+    p.add_argument("--config", required=True, help="scenario file (.toml, or the run's scenario.json)")
+    p.add_argument("--start-timeout", type=float, default=120.0, help="seconds to wait for every robot [120]")
+    p.add_argument("-v", "--verbose", action="store_true")
+    add_config_arguments(p)
+    args = p.parse_args(argv)
+    logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO,
+                        format="%(asctime)s sim %(levelname)s %(message)s")
+    try:
+        scenario = load_scenario(args.config)
+        keys = Keys(args.run_id)
+        conf = session_config_from_args(args)
+    except (ConfigError, ValueError) as exc:
+        print(f"copath sim: {exc}", file=sys.stderr)
+        return 2
+    with ZenohLink.open(conf) as link:
+        ok = SimNode(scenario, keys, link, args.start_timeout).run()
+        time.sleep(0.2)  # let the router forward the closing records before the session closes
+    return 0 if ok else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -72,6 +72,8 @@ from .config import require
 
 __all__ = [
     "SolverConfig",
+    "SolverFields",
+    "PathTable",
     "OCP",
     "MPCSolver",
     "SolveResult",
@@ -146,6 +148,82 @@ class SolverConfig:
         require(self.slack_weight >= 0, "solver.slack_weight", self.slack_weight, "must be >= 0")
         require(self.slack_weight_quadratic >= 0, "solver.slack_weight_quadratic",
                 self.slack_weight_quadratic, "must be >= 0")
+
+
+@dataclass(frozen=True)
+class SolverFields:
+    """Solver keys shared by every MPC controller config (inherit from this).
+
+    A controller config ``class MyConfig(SolverFields)`` accepts these keys in its
+    ``[controller]`` table and gets its :class:`SolverConfig` from
+    :meth:`solver_config`.
+    """
+
+    solver: str = "sqp"
+    """NLP method: ``sqp`` or ``ipopt``."""
+    qp_solver: str = "qrqp"
+    """QP solver of ``sqp``: qrqp, osqp or qpoases."""
+    hessian: str = "gauss-newton"
+    """``gauss-newton`` or ``exact``."""
+    max_iter: int = 20
+    """NLP iterations per solve."""
+    jit: bool = True
+    """JIT-compile the NLP with the C compiler when available."""
+    slack_weight: float = 1e3
+    """Linear penalty per unit slack of soft (terminal) constraints."""
+
+    def __post_init__(self) -> None:
+        self.solver_config()  # validates
+
+    def solver_config(self) -> SolverConfig:
+        return SolverConfig(method=self.solver, qp_solver=self.qp_solver, hessian=self.hessian,
+                            max_iter=self.max_iter, jit=self.jit, slack_weight=self.slack_weight)
+
+
+class PathTable:
+    """Fast look-up of path geometry along a horizon (uniform-grid linear interpolation).
+
+    MPC controllers evaluate x, y, theta, kappa and dkappa/ds at N+1 arc lengths every
+    step; :class:`copath.paths.Path` evaluates the parametric curve with finite-difference
+    stencils (accurate but ~1 ms per call), so the geometry is tabulated once here on a
+    grid of ``step`` metres (default 1 mm: interpolation errors below 1e-6 m and 1e-4
+    1/m on the published paths). Closed paths wrap (theta gains 2 pi per lap and
+    winding); open paths are tabulated on [-length, 2 length] including their straight
+    extensions and clamped beyond.
+    """
+
+    def __init__(self, path, step: float = 1e-3) -> None:
+        self.path = path
+        self.closed = bool(path.closed)
+        self.length = float(path.length)
+        lo, hi = (0.0, self.length) if self.closed else (-self.length, 2 * self.length)
+        n = int(math.ceil((hi - lo) / step)) + 1
+        grid = np.linspace(lo, hi, n)
+        x, y, th, k = path.frame(grid)
+        dk = np.atleast_1d(path.dkappa(grid))
+        self._lo, self._h, self._n = lo, (hi - lo) / (n - 1), n
+        self._tab = np.stack([x, y, th, k, dk])
+        self._winding = 2 * math.pi * getattr(path, "winding", 0)
+
+    def __call__(self, s) -> np.ndarray:
+        """(5, n) rows x, y, theta, kappa, dkappa at arc lengths s (n,)."""
+        s = np.atleast_1d(np.asarray(s, float))
+        laps = np.zeros_like(s)
+        if self.closed:
+            laps = np.floor(s / self.length)
+            s = s - laps * self.length
+        f = np.clip((s - self._lo) / self._h, 0.0, self._n - 1.000001)
+        i = f.astype(int)
+        w = f - i
+        out = self._tab[:, i] * (1 - w) + self._tab[:, i + 1] * w
+        if self.closed:
+            out[2] += self._winding * laps
+        return out
+
+    def pose(self, s: float) -> tuple[float, float, float, float]:
+        """(x, y, theta, kappa) at one arc length."""
+        v = self(s)[:, 0]
+        return float(v[0]), float(v[1]), float(v[2]), float(v[3])
 
 
 SXFn = Callable[..., ca.SX]

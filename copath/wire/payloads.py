@@ -23,6 +23,9 @@ PAYLOADS: dict[str, dict[str, str]] = {
     # Sec. 5.4, Algorithm 5.1: assumed trajectory s_hat on the grid t0 + k dt.
     "assumed_traj": {"t0": "float", "dt": "float", "s_hat": "floats", "psi_scale?": "float"},
     # Sec. 5.5.5: leader -> follower velocity command; follower -> leader report.
-    "hetero_cmd": {"v": "float", "omega": "float"},
-    "hetero_report": {"heading": "float"},
+    # The command carries the follower's reference pose and coordination coordinate
+    # computed on the leader (for the follower's telemetry); the report is the follower's
+    # pose estimate (the leader's camera fix plus compass heading in the original).
+    "hetero_cmd": {"v": "float", "omega": "float", "ref?": "floats", "xi?": "float"},
+    "hetero_report": {"x": "float", "y": "float", "heading": "float"},
 }

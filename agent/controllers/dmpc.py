@@ -46,7 +46,7 @@ import numpy as np
 
 from copath.config import ConfigError, from_table, require
 from copath.morphing import Morphing, morphing
-from copath.mpc import OCP, MPCSolver, SolverConfig, weighted
+from copath.mpc import OCP, MPCSolver, PathTable, SolverFields, weighted
 from copath.paths import Path, wrap_to_pi
 
 from .base import Observation, Outgoing, PeerMessage, RobotContext, StepResult
@@ -68,8 +68,12 @@ IX, IY, IPHI, ITH, IETA, IS = range(NX)
 
 
 @dataclass(frozen=True)
-class DMPCConfig:
+class DMPCConfig(SolverFields):
     """Parameters of the Sec. 5.4 controller (published E5.2 values as defaults)."""
+
+    jit: bool = False
+    """JIT-compile the NLP (chosen off: it adds about 4 s of build per robot and measured
+    no faster at this size, solve p50 about 1.6 ms either way)."""
 
     base_speed: float = 0.4
     """Desired forward speed u_o on the base path, sigma_B of (5.28) [m/s]."""
@@ -110,10 +114,9 @@ class DMPCConfig:
     """Initial path coordinate [m]; default: projection of the first pose onto the path."""
     substeps: int = 1
     """RK4 steps per interval."""
-    solver: Mapping[str, Any] | None = None
-    """Solver options (:class:`copath.mpc.SolverConfig` keys)."""
 
     def __post_init__(self) -> None:
+        super().__post_init__()
         require(self.base_speed > 0, "base_speed", self.base_speed, "must be > 0")
         require(self.horizon >= 2, "horizon", self.horizon, "must be >= 2 (the lateral error needs two steps)")
         for name, n in (("Q", 5), ("R", 4), ("P", 5), ("k_terminal", 4)):
@@ -322,13 +325,10 @@ class DMPCController:
         self.nbrs = tuple(ctx.neighbours)
         self.psi_d = cfg.offset(ctx.name)
         self.dt = ctx.dt
-        # chosen: no JIT by default; it adds about 4 s of build per robot and measured no
-        # faster at this problem size (solve p50 1.6 ms either way)
-        solver_cfg = from_table(SolverConfig, {"jit": False, **dict(cfg.solver or {})},
-                                f"robots.{ctx.name}.controller.solver")
+        self.table = PathTable(self.path)
         self.mpc = MPCSolver(
             _ocp(cfg, len(self.nbrs), self.dt, self.q, self.morph.scale, ctx.model.M, ctx.model.qdot_max),
-            solver_cfg,
+            cfg.solver_config(),
         )
         self.s: float | None = cfg.s0
         self.theta_t: float | None = None
@@ -369,13 +369,13 @@ class DMPCController:
         if self.s is None:
             self.s = project_onto_path(self.path, pose)
         if self.theta_t is None:
-            self.theta_t = self.path.theta(self.s)
+            self.theta_t = float(self.table(self.s)[2, 0])
         s = self.s
         # guess of s along the horizon: previous plan shifted, else nominal progress
         prev = self.mpc.shifted_plan()
         s_guess = prev[0][:, IS] - prev[0][0, IS] + s if prev is not None else s + self.u_o * dt * np.arange(N + 1)
         # one vectorised path evaluation: the reference now and the curvature along the horizon
-        px, py, pth, pk = self.path.frame(np.concatenate([[s], s_guess[:N]]))
+        px, py, pth, pk, _ = self.table(np.concatenate([[s], s_guess[:N]]))
         th_r, kap0, kap = float(pth[0]), float(pk[0]), pk[1:]
         x_r, y_r = float(px[0]) - self.q * math.sin(th_r), float(py[0]) + self.q * math.cos(th_r)  # (5.10)
         c, sn = math.cos(th_r), math.sin(th_r)
@@ -420,8 +420,8 @@ class DMPCController:
             sdot = float(U[0, 0])
             # apply the mean of the model's velocity over [t_k, t_k+1): midpoint of phi and eta
             x1 = X[1]
-            th_r1 = float(self.path.theta(x1[IS]))
-            kap1, kap_N = (float(v) for v in self.path.kappa(np.array([x1[IS], X[-1, IS]])))
+            geo = self.table(np.array([x1[IS], X[-1, IS]]))
+            th_r1, kap1, kap_N = float(geo[2, 0]), float(geo[3, 0]), float(geo[3, 1])
             theta_t1 = th_r1 + x1[IPHI]
             u_R1 = x1[IETA] + self._u_r(kap1)
             omega = float(U[0, 2] + kap[0] * sdot)

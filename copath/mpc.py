@@ -127,7 +127,7 @@ class SolverConfig:
     """Maximum SQP (or interior point) iterations per solve."""
     tol: float = 1e-6
     """Primal and dual tolerance of the NLP solver."""
-    feas_tol: float = 1e-3
+    feas_tol: float = 5e-3
     """A returned plan whose constraint violation exceeds this counts as failed."""
     jit: bool = True
     """JIT-compile the NLP functions with the C compiler when one works."""
@@ -171,13 +171,18 @@ class SolverFields:
     """JIT-compile the NLP with the C compiler when available."""
     slack_weight: float = 1e3
     """Linear penalty per unit slack of soft (terminal) constraints."""
+    slack_weight_quadratic: float = 1e2
+    """Quadratic penalty per unit slack squared of soft (terminal) constraints."""
+    tol: float = 1e-4
+    """Primal and dual tolerance of the NLP solver."""
 
     def __post_init__(self) -> None:
         self.solver_config()  # validates
 
     def solver_config(self) -> SolverConfig:
         return SolverConfig(method=self.solver, qp_solver=self.qp_solver, hessian=self.hessian,
-                            max_iter=self.max_iter, jit=self.jit, slack_weight=self.slack_weight)
+                            max_iter=self.max_iter, jit=self.jit, slack_weight=self.slack_weight,
+                            slack_weight_quadratic=self.slack_weight_quadratic, tol=self.tol)
 
 
 class PathTable:
@@ -467,7 +472,9 @@ class MPCSolver:
     def _nlpsol(self, use_jit: bool) -> ca.Function:
         c = self.config
         nlp = {"x": self._w, "p": self._p, "f": self._f, "g": self._g}
-        opts: dict = {"print_time": False, "error_on_fail": False}
+        # parameter multipliers are never used (and are NaN where a residual has a
+        # sqrt/atan2 kink in a parameter direction)
+        opts: dict = {"print_time": False, "error_on_fail": False, "calc_lam_p": False}
         if use_jit:
             opts.update(self._jit_opts())
         if c.method == "ipopt":
@@ -642,7 +649,10 @@ class MPCSolver:
         )
         if not accepted:
             reason = status if finite else "non-finite solution"
-            return self._fail(f"{reason} (violation {viol:.2g})", x0)
+            result = self._fail(f"{reason} (violation {viol:.2g})", x0)
+            if finite:  # an unfinished iterate is still the best warm start we have
+                self._plan_w = w
+            return result
         self._plan_w = w
         self._lam_x = sol["lam_x"].full().ravel()
         self._lam_g = sol["lam_g"].full().ravel()

@@ -71,9 +71,12 @@ IX, IY, IPHI, ITH, IETA, IS = range(NX)
 class DMPCConfig(SolverFields):
     """Parameters of the Sec. 5.4 controller (published E5.2 values as defaults)."""
 
+    hessian: str = "exact"
+    """Exact Lagrangian Hessian (chosen: with the hard wheel and compatibility constraints
+    active, e.g. a neighbour far ahead, the Gauss-Newton SQP stalled; same solve time)."""
     jit: bool = False
-    """JIT-compile the NLP (chosen off: it adds about 4 s of build per robot and measured
-    no faster at this size, solve p50 about 1.6 ms either way)."""
+    """JIT-compile the NLP (chosen off: it adds seconds to tens of seconds of build per
+    robot and measured no faster at this size, solve p50 about 1 ms either way)."""
 
     base_speed: float = 0.4
     """Desired forward speed u_o on the base path, sigma_B of (5.28) [m/s]."""

@@ -1,0 +1,28 @@
+"""Shared test configuration: hypothesis profile and scenario helpers."""
+
+from __future__ import annotations
+
+import pathlib
+
+import pytest
+from hypothesis import HealthCheck, settings
+
+settings.register_profile("copath", deadline=None, max_examples=60,
+                          suppress_health_check=[HealthCheck.too_slow])
+settings.load_profile("copath")
+
+REPO = pathlib.Path(__file__).resolve().parents[1]
+CONFIGS = REPO / "configs"
+
+
+@pytest.fixture(scope="session")
+def configs_dir() -> pathlib.Path:
+    return CONFIGS
+
+
+def config(prefix: str) -> pathlib.Path:
+    """The scenario file whose name starts with ``prefix`` (e.g. ``"e5.5-"``)."""
+    matches = sorted(CONFIGS.glob(f"{prefix}*.toml"))
+    if len(matches) != 1:
+        raise FileNotFoundError(f"expected one config starting with {prefix!r}, found {matches}")
+    return matches[0]

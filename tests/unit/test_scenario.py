@@ -1,0 +1,86 @@
+"""Scenario validation: every error names the key, the value and what is allowed."""
+
+import pytest
+
+from copath.scenario import ConfigError, load_scenario, parse_scenario
+from tests.conftest import CONFIGS
+
+
+def _base(**over):
+    raw = {
+        "id": "e5.5",
+        "paths": {"main": {"type": "circle", "radius": 1.0}},
+        "controller": {"type": "consensus"},
+        "robots": [{"name": "r1", "path": "main", "neighbours": ["r2"]}, {"name": "r2", "path": "main"}],
+    }
+    raw.update(over)
+    return raw
+
+
+def test_every_shipped_config_is_valid_and_named_by_its_experiment_id():
+    files = sorted(CONFIGS.glob("*.toml"))
+    assert files
+    for f in files:
+        s = load_scenario(f)
+        assert f.name.startswith(s.id + "-"), f.name
+
+
+def test_neighbour_lists_are_made_symmetric():
+    s = parse_scenario(_base())
+    assert s.robot("r2").neighbours == ("r1",)
+    assert s.edges() == [("r1", "r2")]
+
+
+@pytest.mark.parametrize(
+    "over, pattern",
+    [
+        ({"id": "E5.5"}, r"id = 'E5.5' is not allowed"),
+        ({"run": {"clock": "fast"}}, r"run.clock = 'fast' is not allowed; allowed: lockstep, realtime"),
+        ({"run": {"dt": -1}}, r"run.dt = -1.0 is not allowed; must be > 0"),
+        ({"run": {"dtt": 0.1}}, r"run.dtt = 0.1 is not allowed; allowed keys"),
+        ({"network": {"loss": 1.5}}, r"network.loss = 1.5 is not allowed; must be a probability"),
+        ({"controller": {"type": "magic"}}, r"controller.type = 'magic' is not allowed"),
+        ({"robots": [{"name": "r1", "path": "nowhere"}]}, r"robots.r1.path = 'nowhere' is not allowed"),
+        ({"robots": [{"name": "r1", "neighbours": ["r9"]}]}, r"robots.r1.neighbours = \['r9'\] is not allowed"),
+        ({"robots": [{"name": "r1", "pose": [0, 0]}]}, r"robots.r1.pose = \[0, 0\] is not allowed; expected 3 numbers"),
+        ({"robots": [{"name": "r1", "colour": "red"}]}, r"robots\[0\].colour = 'red' is not allowed"),
+        ({"robots": [{"name": "r1"}, {"name": "r1"}]}, r"robots\[0\].name = 'r1' is not allowed; robot names must be unique"),
+        ({"banana": 1}, r"banana = 1 is not allowed; allowed top-level keys"),
+    ],
+)
+def test_bad_values_are_refused_with_key_value_and_rule(over, pattern):
+    with pytest.raises(ConfigError, match=pattern):
+        parse_scenario(_base(**over))
+
+
+def test_unknown_controller_parameter_is_refused_when_the_controller_is_built():
+    from agent.controllers import build_controller
+    from agent.controllers.base import RobotContext
+    from copath.models import UnicycleModel
+
+    s = parse_scenario(_base(controller={"type": "consensus", "k7": 1.0}))
+    r = s.robot("r1")
+    ctx = RobotContext("r1", 0, UnicycleModel(), s.paths, "main", r.neighbours, s.robot_names, 0.1, r.params)
+    with pytest.raises(ConfigError, match=r"robots.r1.controller.k7 = 1.0 is not allowed; allowed keys"):
+        build_controller("consensus", ctx)
+
+
+def test_overrides_are_validated_like_the_file():
+    s = parse_scenario(_base())
+    assert s.with_overrides(network={"delay_ms": 100}).network.delay_ms == 100
+    with pytest.raises(ConfigError, match="network.jitter_ms = -3"):
+        s.with_overrides(network={"jitter_ms": -3})
+
+
+def test_data_files_are_read_into_the_scenario(tmp_path):
+    (tmp_path / "shape.csv").write_text("x,y\n0,0\n1,0.5\n")
+    (tmp_path / "s.toml").write_text(
+        'id = "e5.5"\n[paths.main]\ntype = "circle"\nradius = 1.0\n[controller]\ntype = "consensus"\n'
+        '[[robots]]\nname = "r1"\npath = "main"\n[robots.controller]\nshape_file = "shape.csv"\n'
+    )
+    s = load_scenario(tmp_path / "s.toml")
+    assert s.robot("r1").params["shape"] == [[0.0, 0.0], [1.0, 0.5]]
+    assert "shape_file" not in s.raw["robots"][0]["controller"]  # the raw table is self-contained
+    (tmp_path / "bad.toml").write_text((tmp_path / "s.toml").read_text().replace("shape.csv", "missing.csv"))
+    with pytest.raises(ConfigError, match="shape_file = 'missing.csv' is not allowed; no such file"):
+        load_scenario(tmp_path / "bad.toml")

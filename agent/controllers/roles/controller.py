@@ -110,7 +110,7 @@ class RolesController:
         self.rulings_out: dict[tuple[int, str, str], float] = {}
         self.announce_targets = False
         self.announce_index = False
-        self.still_since = t
+        self.settle_track: list[tuple[float, np.ndarray]] = []
         self.track: list[tuple[float, np.ndarray]] = []
         self.escape_until = -math.inf
         self.escape_vec = np.zeros(2)
@@ -172,19 +172,30 @@ class RolesController:
         self.done = False
         if pos is None:
             self.phase = UNASSIGNED
-            self.still_since = self._t
+            self.settle_track = []
             self._set_park(p)
         else:
             self.phase = ASSIGNED
             self.park = None
 
-    def _set_park(self, p: np.ndarray) -> None:
-        avoid = [
+    def _priority_parks(self) -> list:
+        """Waiting places announced by same-task robots without a role and a lower index."""
+        return [
             q.payload.get("park")
             for q in self._same_task_peers().values()
             if q.phase == UNASSIGNED and q.index < self.index and len(q.payload.get("park") or []) == 2
         ]
+
+    def _set_park(self, p: np.ndarray) -> None:
+        avoid = self._priority_parks()
         self.park = parking_point(p, self.targets.mean(axis=0), self.targets, self.cfg.park_clearance, avoid)
+
+    def _check_park(self, p: np.ndarray) -> None:
+        """Move the waiting place when a robot with priority announced one too close to it."""
+        avoid = self._priority_parks()
+        if avoid and min(float(np.hypot(*(np.asarray(a) - self.park)))
+                         for a in avoid) < self.cfg.park_clearance - 1e-6:
+            self._set_park(p)
 
     def _transform_from_consensus(self, m: np.ndarray) -> tuple[np.ndarray, float]:
         centroid, C = covariance_from_moments(m)
@@ -362,10 +373,14 @@ class RolesController:
             e = float(np.hypot(*(self.targets[self.book.position] - p)))
             return e < (2.0 if self.done else 1.0) * self.cfg.arrive_tol
         if self.phase == UNASSIGNED:
-            if abs(cmd[0]) > 0.01 or abs(cmd[1]) > 0.05:
-                self.still_since = self._t
+            # settled: near the waiting place, or hardly moved for settle_s (repulsion from
+            # a neighbour may hold it off the exact point)
+            self.settle_track.append((self._t, p.copy()))
+            self.settle_track = [h for h in self.settle_track if h[0] >= self._t - self.cfg.settle_s - 1e-9]
+            t0, p0 = self.settle_track[0]
+            still = self._t - t0 >= self.cfg.settle_s - 1e-9 and float(np.hypot(*(p - p0))) < self.cfg.arrive_tol
             near = float(np.hypot(*(self.park - p))) < 2 * self.cfg.arrive_tol
-            return near or self._t - self.still_since >= self.cfg.settle_s
+            return near or still
         return False
 
     # ------------------------------------------------------------------ step
@@ -393,6 +408,8 @@ class RolesController:
         waiting = False
         if self.phase in (ASSIGNED, UNASSIGNED):
             waiting = self._negotiate(same, p)
+        if self.phase == UNASSIGNED:
+            self._check_park(p)
         goal = self._goal()
         if goal is None or waiting:
             cmd = np.zeros(2)

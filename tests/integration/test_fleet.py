@@ -116,22 +116,23 @@ def test_two_runs_with_the_same_id_at_once_do_not_hear_each_other(tmp_path, proc
 
 def test_killing_an_agent_fails_the_run_clearly_and_leaves_a_readable_log(tmp_path, procs):
     p = procs.start(["-m", "orchestrator", "run", str(config("e5.4-")), "--out", str(tmp_path),
-                     "--run-id", "kill-test", "--clock", "realtime", "--duration", "60", "-q"])
-    victim = None
-    deadline = time.monotonic() + 60
-    while victim is None and time.monotonic() < deadline:
-        for pid in child_pids(p.pid):
-            if "agent" in cmdline(pid) and "r2" in cmdline(pid):
-                victim = pid
-        time.sleep(0.2)
-    assert victim is not None, "agent r2 did not start"
-    time.sleep(4.0)  # let the run get going
-    os.kill(victim, signal.SIGKILL)
+                     "--run-id", "kill-test", "--clock", "realtime", "--duration", "60"])
+    err_lines: list[str] = []
+    reader = threading.Thread(target=lambda: err_lines.extend(l.decode() for l in p.stderr), daemon=True)
+    reader.start()
+    deadline = time.monotonic() + 90
+    while not any("10%" in l for l in err_lines):  # progress: 6 s of the run have passed
+        assert time.monotonic() < deadline and p.poll() is None, "".join(err_lines)
+        time.sleep(0.1)
+    victim = [pid for pid in child_pids(p.pid) if "agent" in cmdline(pid) and "r2" in cmdline(pid)]
+    assert len(victim) == 1
+    os.kill(victim[0], signal.SIGKILL)
     rc = p.wait(timeout=60)
-    err = p.stderr.read().decode()
+    reader.join(timeout=10)
+    err = "".join(err_lines)
     assert rc == 1
-    assert "FAILED" in err and "robot r2" in err and str(victim) in err and "SIGKILL" in err
-    assert not [pid for pid in child_pids(p.pid)]  # nothing left behind
+    assert "FAILED" in err and "robot r2" in err and str(victim[0]) in err and "SIGKILL" in err
+    assert not child_pids(p.pid)  # nothing left behind
     info = log_info(tmp_path / "run.mcap")
     assert info["outcome"]["ok"] == "False" and info["messages"] > 0
     m = json.loads((tmp_path / "metrics.json").read_text())

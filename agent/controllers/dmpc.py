@@ -338,6 +338,7 @@ class DMPCController:
         self.u_R = 0.0
         self.neighbour_traj: dict[str, tuple[float, AssumedTrajectory]] = {}  # name -> (stamp, psi traj)
         self.own_assumed: AssumedTrajectory | None = None
+        self._last: tuple[float, np.ndarray] | None = None  # (t_k, predicted X) of the last solve
         self.k = 0
 
     # -- helpers ---------------------------------------------------------------------
@@ -364,6 +365,23 @@ class DMPCController:
             return value
         return value + self.psi_period * np.round((ref - value) / self.psi_period)
 
+    def _advance(self, elapsed: float, X: np.ndarray) -> None:
+        """Move the model states to the actual time of the next update (asynchronous
+        updates, Sec. 5.3.3/5.4.3): s along the plan's piecewise-constant s-dot for the
+        elapsed time (extrapolated with the last s-dot), so s stays on the assumed
+        trajectory the neighbours were told; the motion direction and speed to their
+        planned values after min(elapsed, delta) (the command is held after that)."""
+        a = max(0.0, elapsed) / self.dt
+        grid = np.arange(len(X), dtype=float)
+        s_plan = X[:, IS]
+        last_rate = s_plan[-1] - s_plan[-2]
+        self.s = float(np.interp(a, grid, s_plan) if a <= grid[-1] else s_plan[-1] + last_rate * (a - grid[-1]))
+        b = min(a, 1.0)
+        x_b = X[0] + (X[1] - X[0]) * b
+        geo = self.table(x_b[IS])
+        self.theta_t = float(geo[2, 0] + x_b[IPHI])
+        self.u_R = float(x_b[IETA] + self._u_r(float(geo[3, 0])))
+
     # -- step ------------------------------------------------------------------------
     def step(self, obs: Observation, inbox: Sequence[PeerMessage]) -> StepResult:
         cfg, N, dt = self.cfg, self.cfg.horizon, self.dt
@@ -373,6 +391,8 @@ class DMPCController:
             self.s = project_onto_path(self.path, pose)
         if self.theta_t is None:
             self.theta_t = float(self.table(self.s)[2, 0])
+        if self._last is not None:
+            self._advance(obs.t - self._last[0], self._last[1])
         s = self.s
         # guess of s along the horizon: previous plan shifted, else nominal progress
         prev = self.mpc.shifted_plan()
@@ -416,7 +436,7 @@ class DMPCController:
             cmd = np.zeros(3)
             self.u_R = 0.0
             self.theta_t = pose[2]
-            s_next = s
+            self._last = None
             s_plan = np.full(N + 1, s)
             sdot = 0.0
         else:
@@ -433,14 +453,13 @@ class DMPCController:
             uR_mid = 0.5 * (self.u_R + u_R1)
             rel = tt_mid - theta_mid
             cmd, _ = self.ctx.model.saturate([uR_mid * math.cos(rel), uR_mid * math.sin(rel), omega])
-            self.theta_t, self.u_R = float(theta_t1), float(u_R1)
-            s_next = float(x1[IS])
             s_plan = X[:, IS]
         tail = terminal_rollout(X[-1], kap_N, self.q, self.u_o, cfg.k_terminal, dt)[-1] \
             if res.fallback != "stop" else s
         assumed = assumed_trajectory(obs.t, dt, s_plan, tail)
         self.own_assumed = assumed
-        self.s = s_next
+        if res.fallback != "stop":
+            self._last = (obs.t, X)
         self.k += 1
         psi = self.morph.psi(s)
         msg = Outgoing("assumed_traj", {"t0": float(obs.t), "dt": float(dt),

@@ -207,13 +207,32 @@ class Path:
         return float(dk[0]) if scalar else dk
 
     def frame(self, s):
-        """(x, y, theta, kappa) at s, each shaped like s."""
-        p = np.atleast_2d(self.pos(np.atleast_1d(s)))
-        th = np.atleast_1d(self.theta(np.atleast_1d(s)))
-        k = np.atleast_1d(self.kappa(np.atleast_1d(s)))
-        if np.ndim(s) == 0:
-            return float(p[0, 0]), float(p[0, 1]), float(th[0]), float(k[0])
-        return p[:, 0], p[:, 1], th, k
+        """(x, y, theta, kappa) at s, each shaped like s, from one evaluation of the curve.
+
+        Scalars in, floats out; this is the hot path of the controllers (one stencil of
+        nine curve points per s instead of separate calls for position, tangent and
+        curvature)."""
+        scalar = np.ndim(s) == 0
+        s_in, laps, extra = self._split(s)
+        phi = self._phi(s_in)
+        h1, h2 = self._h, self._h * 10
+        offs = np.array([0.0, h1, -h1, 2 * h1, -2 * h1, h2, -h2, 2 * h2, -2 * h2])
+        R = self._r((phi[None, :] + offs[:, None]).reshape(-1)).reshape(9, -1, 2)
+        d1 = (-R[3] + 8 * R[1] - 8 * R[2] + R[4]) / (12 * h1)
+        d2 = (-R[7] + 16 * R[5] - 30 * R[0] + 16 * R[6] - R[8]) / (12 * h2 * h2)
+        sp = np.hypot(d1[:, 0], d1[:, 1])
+        k = (d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0]) / sp**3
+        raw = np.arctan2(d1[:, 1], d1[:, 0])
+        ref = np.interp(s_in, self._s_tab, self._theta_tab)
+        th = raw + 2 * math.pi * np.round((ref - raw) / (2 * math.pi))
+        pos = R[0]
+        if np.any(extra != 0.0):
+            pos = pos + extra[:, None] * np.stack([np.cos(th), np.sin(th)], axis=-1)
+            k = np.where(extra != 0.0, 0.0, k)
+        th = th + 2 * math.pi * self.winding * laps
+        if scalar:
+            return float(pos[0, 0]), float(pos[0, 1]), float(th[0]), float(k[0])
+        return pos[:, 0], pos[:, 1], th, k
 
     def normal(self, s) -> np.ndarray:
         """Left unit normal n = (-sin theta, cos theta) at s."""

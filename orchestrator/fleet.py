@@ -173,7 +173,7 @@ def run_fleet(scenario: Scenario, opts: RunOptions) -> RunOutcome:
                    "python": sys.version.split()[0]},
     }
     router = ZenohLink.open(SessionConfig(mode="router", listen=tuple(listen), connect=tuple(opts.connect)))
-    recorder = Recorder(out / "run.mcap", keys, metadata)
+    recorder = Recorder(out / "run.mcap", keys, metadata, scenario)
     router.subscribe_raw(keys.all, recorder.write)
     common = ["--run-id", opts.run_id, "--config", str(scen_path.resolve())]
     for e in connect_for_children:

@@ -37,7 +37,8 @@ def software_version() -> str:
 class Recorder:
     """Writes every (key, bytes) it is given to an MCAP file; thread-safe."""
 
-    def __init__(self, path: pathlib.Path, keys: Keys, metadata: dict[str, dict[str, str]]) -> None:
+    def __init__(self, path: pathlib.Path, keys: Keys, metadata: dict[str, dict[str, str]],
+                 scenario=None) -> None:
         self.path = pathlib.Path(path)
         self.keys = keys
         self._fh = self.path.open("wb")
@@ -52,6 +53,19 @@ class Recorder:
         self.stats: dict[str, Stats] = {}
         self.end: End | None = None
         self._closed = False
+        self._viz: dict[str, int] = {}
+        self._radii = {}
+        if scenario is not None:  # Foxglove channels derived from the truth (orchestrator/viz.py)
+            from . import viz
+
+            self._vizmod = viz
+            self._radii = {r.name: r.model.radius for r in scenario.robots}
+            for topic, schema_name in viz.TOPICS.items():
+                sid = self._w.register_schema(schema_name, "jsonschema", json.dumps(viz.SCHEMAS[schema_name]).encode())
+                self._viz[topic] = self._w.register_channel(topic=topic, message_encoding=MessageEncoding.JSON,
+                                                            schema_id=sid)
+            self._w.add_message(self._viz["/viz/scene"], log_time=time.time_ns(), data=viz.static_scene(scenario),
+                                publish_time=time.time_ns(), sequence=0)
 
     def write(self, key: str, data: bytes) -> None:
         now = time.time_ns()
@@ -75,6 +89,13 @@ class Recorder:
                 return
             if isinstance(rec, Truth):
                 self.sim_t = rec.t
+                if self._viz:
+                    scene = self._vizmod.scene_update(rec, self._radii)
+                    poses = self._vizmod.poses_in_frame(rec)
+                    with self._lock:
+                        if not self._closed:
+                            self._w.add_message(self._viz["/viz/scene"], log_time=now, data=scene, publish_time=now)
+                            self._w.add_message(self._viz["/viz/robots"], log_time=now, data=poses, publish_time=now)
             elif isinstance(rec, Stats):
                 self.stats[rec.proc] = rec
             elif isinstance(rec, End):
@@ -110,11 +131,13 @@ class RunLog:
 
 
 def iter_raw(path: str | pathlib.Path) -> Iterator[tuple[int, str, bytes]]:
-    """(log_time_ns, key, bytes) of every message in log order."""
+    """(log_time_ns, key, bytes) of every run message (msgpack) in log order; the derived
+    Foxglove channels are left out."""
     with open(path, "rb") as fh:
         reader = make_reader(fh)
         for _schema, channel, message in reader.iter_messages(log_time_order=True):
-            yield message.log_time, channel.topic, message.data
+            if channel.message_encoding == MessageEncoding.MessagePack:
+                yield message.log_time, channel.topic, message.data
 
 
 def read_log(path: str | pathlib.Path) -> RunLog:

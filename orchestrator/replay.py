@@ -37,15 +37,16 @@ def log_info(path: str | pathlib.Path) -> dict:
     if summary is None or summary.statistics is None:
         raise ValueError(f"{path.name} has no summary section (was the run interrupted before the log was closed?)")
     st = summary.statistics
-    channels = {}
+    channels, viz = {}, {}
     for cid, ch in summary.channels.items():
-        channels[ch.topic] = st.channel_message_counts.get(cid, 0)
+        (channels if ch.message_encoding == "msgpack" else viz)[ch.topic] = st.channel_message_counts.get(cid, 0)
     scen = json.loads(metadata.get("scenario", {}).get("json", "{}") or "{}")
     return {
         "file": path.name,
         "size_bytes": path.stat().st_size,
-        "messages": st.message_count,
+        "messages": sum(channels.values()),
         "channels": dict(sorted(channels.items())),
+        "viz_channels": dict(sorted(viz.items())),
         "start_ns": st.message_start_time,
         "end_ns": st.message_end_time,
         "duration_s": (st.message_end_time - st.message_start_time) / 1e9 if st.message_count else 0.0,
@@ -77,6 +78,8 @@ def format_info(info: dict) -> str:
     width = max((len(k) for k in info["channels"]), default=10)
     for topic, n in info["channels"].items():
         lines.append(f"  {topic:<{width}}  {n:>8d} msgs  (msgpack)")
+    for topic, n in info.get("viz_channels", {}).items():
+        lines.append(f"  {topic:<{width}}  {n:>8d} msgs  (json, Foxglove, derived from sim/truth)")
     return "\n".join(lines)
 
 

@@ -369,6 +369,7 @@ class MPCSolver:
         self._fallback_x: np.ndarray | None = None
         self.failures = 0
         self._build_shift_indices()
+        self._setup_buffer()
 
     # -- construction -----------------------------------------------------------------
     def _build_symbolic(self) -> None:
@@ -520,12 +521,8 @@ class MPCSolver:
 
     # -- plan bookkeeping ------------------------------------------------------------
     def _split(self, w: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        o = self.ocp
-        body = w[: o.N * self._stride].reshape(o.N, self._stride)
-        X = np.vstack([body[:, : o.nx], w[o.N * self._stride: o.N * self._stride + o.nx][None, :]])
-        U = body[:, o.nx:]
-        S = w[o.N * self._stride + o.nx:]
-        return X, U, S
+        """(X (N+1, nx), U (N, nu), slacks) of a decision vector (copies)."""
+        return w[self._x_idx], w[self._u_idx2], w[self._s_idx]
 
     def _join(self, X: np.ndarray, U: np.ndarray, S: np.ndarray) -> np.ndarray:
         body = np.hstack([X[:-1], U]).reshape(-1)
@@ -535,8 +532,8 @@ class MPCSolver:
         """(X, U) of the last solution shifted by one step (last entries repeated)."""
         if self._plan_w is None:
             return None
-        X, U, _ = self._split(self._plan_w)
-        return np.vstack([X[1:], X[-1:]]), np.vstack([U[1:], U[-1:]])
+        w = self._plan_w[self._w_shift]
+        return w[self._x_idx], w[self._u_idx2]
 
     def reset(self) -> None:
         """Forget the warm start and the fallback plan."""
@@ -550,6 +547,26 @@ class MPCSolver:
         U = np.asarray(U, float).reshape(o.N, o.nu)
         self._plan_w = self._join(X, U, np.zeros(self._n_slack))
         self._lam_x = self._lam_g = None
+
+    def _setup_buffer(self) -> None:
+        """Pre-allocated numpy arrays bound to the solver's FunctionBuffer.
+
+        A normal CasADi call converts every numpy argument to a DM (tens of
+        microseconds each); the buffer reads and writes these arrays in place.
+        """
+        S = self._solver
+        self._io = {S.name_in(i): np.zeros(S.nnz_in(i)) for i in range(S.n_in())}
+        self._io.update({S.name_out(i): np.zeros(S.nnz_out(i)) for i in range(S.n_out())})
+        self._io["lbg"][:] = self._lbg_np
+        self._io["ubg"][:] = self._ubg_np
+        self._buffer, self._trigger = S.buffer()
+        for i in range(S.n_in()):
+            self._buffer.set_arg(i, memoryview(self._io[S.name_in(i)]))
+        for i in range(S.n_out()):
+            self._buffer.set_res(i, memoryview(self._io[S.name_out(i)]))
+        o = self.ocp
+        self._u_idx = np.concatenate([np.arange(k * self._stride + o.nx, (k + 1) * self._stride)
+                                      for k in range(o.N)])
 
     def _build_shift_indices(self) -> None:
         """Index arrays that shift w, lam_x and lam_g by one stage in one take."""
@@ -569,6 +586,11 @@ class MPCSolver:
             (a0, n0), (a1, _) = blocks[k], blocks[k + 1]
             g_shift[a0:a0 + n0] = np.arange(a1, a1 + n0)
         self._g_shift = g_shift
+        # index arrays of X (N+1, nx), U (N, nu) and the slacks inside w
+        x_idx = [np.arange(k * st, k * st + nx) for k in range(o.N)] + [np.arange(o.N * st, o.N * st + nx)]
+        self._x_idx = np.stack(x_idx)
+        self._u_idx2 = np.stack([np.arange(k * st + nx, (k + 1) * st) for k in range(o.N)])
+        self._s_idx = np.arange(o.N * st + nx, self._nw)
 
     # -- solving ------------------------------------------------------------------------
     def solve(
@@ -596,52 +618,55 @@ class MPCSolver:
             Input bounds replacing the OCP's for this solve only.
         """
         o = self.ocp
+        io = self._io
         x0 = np.asarray(x0, float).reshape(o.nx)
-        parts = [x0]
-        if o.n_p:
-            parts.append(np.asarray(p_stage, float).reshape(-1))
-        if o.n_pt:
-            parts.append(np.asarray(p_term, float).reshape(-1))
-        p = np.concatenate(parts)
-        if p.size != self._p.numel():
-            return self._fail(f"parameter size {p.size} != {self._p.numel()}", x0)
-        lbw, ubw, lo, hi = self._lbw, self._ubw, self._lbw_np, self._ubw_np
+        p = io["p"]
+        p[: o.nx] = x0
+        try:
+            if o.n_p:
+                p[o.nx: o.nx + o.N * o.n_p] = np.asarray(p_stage, float).reshape(-1)
+            if o.n_pt:
+                p[o.nx + o.N * o.n_p:] = np.asarray(p_term, float).reshape(-1)
+        except ValueError as exc:
+            return self._fail(f"parameters do not fit: {exc}", x0)
+        lo, hi = io["lbx"], io["ubx"]
+        lo[:] = self._lbw_np
+        hi[:] = self._ubw_np
         if u_lb is not None or u_ub is not None:
-            lo, hi = lo.copy(), hi.copy()
-            for k in range(o.N):
-                a = k * self._stride + o.nx
-                if u_lb is not None:
-                    lo[a:a + o.nu] = np.broadcast_to(np.asarray(u_lb, float), (o.N, o.nu))[k]
-                if u_ub is not None:
-                    hi[a:a + o.nu] = np.broadcast_to(np.asarray(u_ub, float), (o.N, o.nu))[k]
-            lbw, ubw = ca.DM(lo), ca.DM(hi)
-        lam_x = lam_g = None
+            for bound, arr in ((u_lb, lo), (u_ub, hi)):
+                if bound is not None:
+                    b = np.broadcast_to(np.asarray(bound, float), (o.N, o.nu))
+                    arr[self._u_idx] = b.reshape(-1)
+        w0, lam_x, lam_g = io["x0"], io["lam_x0"], io["lam_g0"]
         if guess is not None:
-            w0 = self._join(np.asarray(guess[0], float).reshape(o.N + 1, o.nx),
-                            np.asarray(guess[1], float).reshape(o.N, o.nu), np.zeros(self._n_slack))
+            w0[:] = self._join(np.asarray(guess[0], float).reshape(o.N + 1, o.nx),
+                               np.asarray(guess[1], float).reshape(o.N, o.nu), np.zeros(self._n_slack))
+            lam_x[:] = 0.0
+            lam_g[:] = 0.0
         elif self._plan_w is not None:
-            w0 = self._plan_w[self._w_shift]
+            np.take(self._plan_w, self._w_shift, out=w0)
             if self._lam_x is not None:
-                lam_x = self._lam_x[self._w_shift]
-                lam_g = self._lam_g[self._g_shift]
+                np.take(self._lam_x, self._w_shift, out=lam_x)
+                np.take(self._lam_g, self._g_shift, out=lam_g)
+            else:
+                lam_x[:] = 0.0
+                lam_g[:] = 0.0
         else:
-            w0 = self._join(np.tile(x0, (o.N + 1, 1)), np.tile(self._stop_u, (o.N, 1)),
-                            np.zeros(self._n_slack))
+            w0[:] = self._join(np.tile(x0, (o.N + 1, 1)), np.tile(self._stop_u, (o.N, 1)),
+                               np.zeros(self._n_slack))
+            lam_x[:] = 0.0
+            lam_g[:] = 0.0
         w0[: o.nx] = x0
         # keep the initial guess inside the box (active-set QP solvers prefer it)
         np.clip(w0, lo, hi, out=w0)
-        args = {"x0": w0, "p": p, "lbx": lbw, "ubx": ubw, "lbg": self._lbg, "ubg": self._ubg}
-        if lam_x is not None:
-            args["lam_x0"] = lam_x
-            args["lam_g0"] = lam_g
         try:
-            sol = self._solver.call(args)
-            stats = self._solver.stats()
+            self._trigger()  # zero-copy call through the FunctionBuffer (FIELD_NOTES: ~60 us saved)
+            stats = self._buffer.stats()
         except Exception as exc:  # CasADi raises RuntimeError on evaluation errors
             return self._fail(f"exception: {exc}", x0)
         status = str(stats.get("return_status", "unknown"))
-        w = sol["x"].full().ravel()
-        g = sol["g"].full().ravel()
+        w = io["x"].copy()
+        g = io["g"]
         viol = max(0.0, float(np.max(self._lbg_np - g, initial=0.0)), float(np.max(g - self._ubg_np, initial=0.0)))
         finite = bool(np.isfinite(w).all()) and math.isfinite(viol)
         accepted = finite and viol <= self.config.feas_tol and (
@@ -654,11 +679,11 @@ class MPCSolver:
                 self._plan_w = w
             return result
         self._plan_w = w
-        self._lam_x = sol["lam_x"].full().ravel()
-        self._lam_g = sol["lam_g"].full().ravel()
+        self._lam_x = io["lam_x"].copy()
+        self._lam_g = io["lam_g"].copy()
         X, U, S = self._split(w)
         self._fallback_plan, self._fallback_x = U, X
-        return SolveResult(True, status, U, X, int(stats.get("iter_count", 0)), float(sol["f"]), S, None)
+        return SolveResult(True, status, U, X, int(stats.get("iter_count", 0)), float(io["f"][0]), S, None)
 
     def _fail(self, reason: str, x0: np.ndarray) -> SolveResult:
         """Fallback policy: shifted previous plan while one is left, else stop."""

@@ -299,15 +299,20 @@ class OmniPathFollowingNMPC:
         self.terminal = terminal
         self.mpc = MPCSolver(ocp, solver or SolverConfig())
 
-    def _params(self, s_bar: np.ndarray, u_R) -> np.ndarray:
+    def _params(self, s_bar: np.ndarray, u_R: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Stage parameters (N+1, 5) at s_bar and the path point (x, y, theta) at s_bar[0]."""
         geo = self.table(s_bar)
-        k, dk = geo[3], geo[4]
+        prm = np.empty((len(s_bar), 5))
+        prm[:, 0] = geo[3]
+        prm[:, 1] = geo[4]
+        prm[:, 2] = s_bar
+        prm[:, 3] = u_R
         if self.heading == "fixed":
-            th_off = np.arctan2(np.sin(geo[2] - self.heading_angle), np.cos(geo[2] - self.heading_angle))
+            d = geo[2] - self.heading_angle
+            prm[:, 4] = np.arctan2(np.sin(d), np.cos(d))
         else:
-            th_off = np.zeros_like(k)
-        uR = np.broadcast_to(np.asarray(u_R, float), s_bar.shape)
-        return np.stack([k, dk, s_bar, uR, th_off], axis=1)
+            prm[:, 4] = 0.0
+        return prm, geo[:3, 0]
 
     def reference(self, s: float) -> np.ndarray:
         """(x_d, y_d, theta_d) at s: path point and desired heading."""
@@ -320,17 +325,21 @@ class OmniPathFollowingNMPC:
         ``u_R`` is the desired translational speed [m/s], a scalar or (N,) per step.
         """
         N = self.N
-        x0 = np.concatenate([pf_errors(pose, self.table.pose(s)), [s]])
         plan = self.mpc.shifted_plan()
         guess = None
-        uR_arr = np.broadcast_to(np.asarray(u_R, float), (N,))
+        uR_arr = np.empty(N + 1)
+        uR_arr[:N] = u_R
+        uR_arr[N] = uR_arr[N - 1]
+        if plan is None:
+            s_bar = s + float(uR_arr[0]) * self.dt * np.arange(N + 1)
+        else:
+            s_bar = plan[0][:, 3] - plan[0][0, 3] + s  # linearisation points consistent with x0
+        prm, geo0 = self._params(s_bar, uR_arr)
+        x0 = np.empty(4)
+        x0[:3] = pf_errors(pose, geo0)
+        x0[3] = s
         if plan is None:
             guess = self._cold_guess(x0, float(uR_arr[0]))
-            s_bar = guess[0][:, 3].copy()
-        else:
-            s_bar = plan[0][:, 3].copy()
-        s_bar += s - s_bar[0]  # keep the linearisation points consistent with x0
-        prm = self._params(s_bar, np.append(uR_arr, uR_arr[-1]))
         res = self.mpc.solve(x0, prm[:N], prm[N] if self.terminal else None, guess=guess)
         q = res.u0[:3]
         body = self.Minv @ q

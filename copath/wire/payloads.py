@@ -32,6 +32,6 @@ PAYLOADS: dict[str, dict[str, str]] = {
     # (Algorithm 6.1), (6.16) z/eta, claim/taken sets and rulings [pos, winner, loser] (Alg. 6.2).
     "role_state": {"task": "int", "index": "int", "phase": "int", "pos": "floats", "vel": "floats", "deg": "int",
                    "z": "float", "eta": "float", "claim": "int", "d": "float", "taken": "ints", "park": "floats",
-                   "rulings": "any", "ac_x?": "floats", "ac_to?": "strs", "ac_a?": "floats", "ac_deg?": "int",
+                   "rulings": "any", "ac_x?": "floats", "ac_to?": "strs", "ac_a?": "floats", "ac_e?": "floats", "ac_deg?": "int",
                    "known?": "any", "xf?": "floats"},
 }

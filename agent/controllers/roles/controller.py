@@ -264,11 +264,15 @@ class RolesController:
                 continue
             to = q.payload.get("ac_to") or []
             flows = q.payload.get("ac_a") or []
+            echoes = q.payload.get("ac_e") or []
             a = np.zeros(_N_MOMENTS)
+            echo = np.zeros(_N_MOMENTS)  # it has not heard us yet: nothing of ours applied
             if self.name in to:
                 k = to.index(self.name)
                 a = np.asarray(flows[k * _N_MOMENTS:(k + 1) * _N_MOMENTS], dtype=float)
-            nbrs[n] = NeighbourContribution(np.asarray(x, dtype=float), int(q.payload.get("ac_deg", 0)), a)
+                if len(echoes) == len(flows):
+                    echo = np.asarray(echoes[k * _N_MOMENTS:(k + 1) * _N_MOMENTS], dtype=float)
+            nbrs[n] = NeighbourContribution(np.asarray(x, dtype=float), int(q.payload.get("ac_deg", 0)), a, echo)
         self.ac_nbrs = nbrs
         est = self.ac.step(nbrs)
         if self.phase != CONSENSUS or self.targets is not None:
@@ -457,6 +461,7 @@ class RolesController:
             payload["ac_x"] = [float(c) for c in self.ac.estimate]
             payload["ac_to"] = to
             payload["ac_a"] = [float(c) for n in to for c in self.ac.flow_to(n)]
+            payload["ac_e"] = [float(c) for n in to for c in self.ac.echo_to(n)]
             payload["ac_deg"] = len(to)
         return Outgoing(MESSAGE_KIND, payload)
 

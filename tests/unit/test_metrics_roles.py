@@ -1,0 +1,83 @@
+"""roles_metrics on a synthetic trace with a known outcome (Chapter 6 metrics)."""
+
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from orchestrator.metrics_roles import roles_metrics
+
+DT = 0.5
+G0 = [[0.0, 0.0], [1.0, 0.0]]  # formation 0: two positions
+G1 = [[0.0, 1.0], [1.0, 1.0], [2.0, 1.0]]  # formation 1: three positions, one stays empty
+
+
+def _robot(start, steps):
+    """steps: list of (t, xy, telemetry dict); pose held between samples."""
+    t = np.array([s[0] for s in steps])
+    pose = np.array([[*s[1], 0.0] for s in steps])
+    return SimpleNamespace(t=t, pose=pose, telemetry_t=t.copy(), telemetry=[s[2] for s in steps])
+
+
+def _trace():
+    # robot a: task 0 -> position 1 (swapped with the optimum), done at t=2; task 1 -> position 0
+    a = _robot((0.0, 0.0), [
+        (0.0, (0.0, 0.0), {"task": 0, "task_done": False, "formation_targets": G0, "assigned_index": 1,
+                           "conflicts_resolved": 0}),
+        (0.5, (0.5, 0.0), {"task": 0, "task_done": False, "conflicts_resolved": 1}),
+        (1.0, (1.0, 0.0), {"task": 0, "task_done": True, "conflicts_resolved": 1}),
+        (1.5, (1.0, 0.0), {"task": 0, "task_done": True, "conflicts_resolved": 1}),
+        (2.0, (1.0, 0.0), {"task": 1, "task_done": False, "formation_targets": G1, "assigned_index": 0,
+                           "conflicts_resolved": 1}),
+        (2.5, (0.5, 0.5), {"task": 1, "task_done": False, "conflicts_resolved": 1}),
+        (3.0, (0.0, 1.0), {"task": 1, "task_done": True, "conflicts_resolved": 1}),
+        (3.5, (0.0, 1.0), {"task": 1, "task_done": True, "conflicts_resolved": 1}),
+    ])
+    # robot b: task 0 -> position 0 at t=1.5; task 1 -> position 1, never done
+    b = _robot((1.0, 0.0), [
+        (0.0, (1.0, 0.0), {"task": 0, "task_done": False, "formation_targets": G0, "assigned_index": 0,
+                           "conflicts_resolved": 0}),
+        (0.5, (1.0, 0.0), {"task": 0, "task_done": False, "conflicts_resolved": 0}),
+        (1.0, (0.5, 0.0), {"task": 0, "task_done": False, "conflicts_resolved": 0}),
+        (1.5, (0.0, 0.0), {"task": 0, "task_done": True, "conflicts_resolved": 0}),
+        (2.0, (0.0, 0.0), {"task": 0, "task_done": True, "conflicts_resolved": 0}),
+        (2.5, (0.0, 0.0), {"task": 1, "task_done": False, "formation_targets": G1, "assigned_index": 1,
+                           "conflicts_resolved": 2}),
+        (3.0, (0.5, 0.5), {"task": 1, "task_done": False, "conflicts_resolved": 2}),
+        (3.5, (0.8, 0.8), {"task": 1, "task_done": False, "conflicts_resolved": 2}),
+    ])
+    return SimpleNamespace(robots={"a": a, "b": b}, dt=DT)
+
+
+def _scenario():
+    robots = [SimpleNamespace(name=n, controller="roles", params={"formations": [G0, G1]}) for n in ("a", "b")]
+    return SimpleNamespace(robots=robots)
+
+
+def test_roles_metrics_on_a_synthetic_trace():
+    m = roles_metrics(_trace(), _scenario())
+    assert m["tasks_total"] == 2
+    # task 0: both working on it and done at t = 1.5; task 1: b never finishes
+    assert m["tasks_completed"] == 1
+    assert m["task_times_s"] == [pytest.approx(1.5)]
+    # task 0 at t = 0: a at (0,0) holds position 1 (cost 1), b at (1,0) holds 0 (cost 1);
+    # the optimum keeps both where they are (cost 0)
+    assert m["assignment_cost_per_task"][0] == pytest.approx(2.0)
+    assert m["assignment_cost_optimal_per_task"][0] == pytest.approx(0.0)
+    # task 1, first agreement at t = 2.0: a at (1,0) -> (0,1) costs 2, b at (0,0) -> (1,1)
+    # costs 2; the optimum sends a to (1,1) (1) and b to (0,1) (1)
+    assert m["assignment_cost_per_task"][1] == pytest.approx(4.0)
+    assert m["assignment_cost_optimal_per_task"][1] == pytest.approx(2.0)
+    assert m["assignment_cost"] == pytest.approx(6.0)
+    assert m["assignment_cost_optimal"] == pytest.approx(2.0)
+    assert m["conflicts_resolved"] == 3
+    assert m["assignment_duplicates"] == 0
+
+
+def test_roles_metrics_counts_duplicates_and_handles_no_roles_robots():
+    tr = _trace()
+    tr.robots["b"].telemetry[0] = dict(tr.robots["b"].telemetry[0], assigned_index=1)
+    m = roles_metrics(tr, _scenario())
+    assert m["assignment_duplicates"] == 1
+    empty = roles_metrics(tr, SimpleNamespace(robots=[SimpleNamespace(name="a", controller="consensus", params={})]))
+    assert empty["tasks_total"] == 0 and empty["assignment_cost"] is None

@@ -245,6 +245,13 @@ class LTVPathFollowingQP:
         Hm, fm = self._condense(x_in, k_in, u_in)
         sol = self._qp(h=Hm, g=fm, lbx=lb, ubx=ub)
         self._solve = ca.Function(f"{name}_solve", [x_in, k_in, u_in, lb, ub], [sol["x"]])
+        # zero-copy calls: numpy arrays bound once to the Function's buffer
+        self._io = [np.zeros(n), np.zeros(N), np.zeros(N), np.zeros(nU), np.zeros(nU)]
+        self._out = np.zeros(nU)
+        self._buffer, self._trigger = self._solve.buffer()
+        for i, a in enumerate(self._io):
+            self._buffer.set_arg(i, memoryview(a))
+        self._buffer.set_res(0, memoryview(self._out))
         self._last: np.ndarray | None = None
 
     def matrices(self, xe, kappa, u_R) -> tuple[np.ndarray, np.ndarray]:
@@ -255,15 +262,20 @@ class LTVPathFollowingQP:
     def solve(self, xe, kappa, u_R, lb, ub) -> LTVSolution:
         """Solve the QP; on failure return the shifted previous plan, else zeros."""
         N = self.N
-        lb = np.asarray(lb, float).reshape(-1)
-        ub = np.asarray(ub, float).reshape(-1)
+        io = self._io
         try:
-            U = self._solve(np.asarray(xe, float), np.asarray(kappa, float), np.asarray(u_R, float), lb, ub)
-            U = U.full().ravel()
-            ok = bool(np.isfinite(U).all()) and bool(np.all(U >= lb - 1e-6)) and bool(np.all(U <= ub + 1e-6))
+            io[0][:] = xe
+            io[1][:] = kappa
+            io[2][:] = u_R
+            io[3][:] = np.ravel(lb)
+            io[4][:] = np.ravel(ub)
+            self._trigger()
+            U = self._out.copy()
+            ok = bool(np.isfinite(U).all()) and bool(np.all(U >= io[3] - 1e-6)) and bool(np.all(U <= io[4] + 1e-6))
             status = "solved" if ok else "infeasible or non-finite"
         except Exception as exc:  # never raise out of a control step
             ok, status, U = False, f"exception: {exc}", None
+        lb, ub = io[3].copy(), io[4].copy()
         if ok:
             self._last = U.reshape(N, 3)
             return LTVSolution(True, self._last, status)

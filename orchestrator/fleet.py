@@ -76,13 +76,13 @@ class _Child:
     log: Any
 
 
-def _spawn(name: str, argv: list[str], log_path: pathlib.Path) -> _Child:
+def _spawn(name: str, argv: list[str], log_path: pathlib.Path, cwd: pathlib.Path) -> _Child:
     env = dict(os.environ)
     env["PYTHONPATH"] = os.pathsep.join(p for p in (str(REPO_ROOT), env.get("PYTHONPATH", "")) if p)
     env.setdefault("PYTHONUNBUFFERED", "1")
     log = log_path.open("wb")
     proc = subprocess.Popen(argv, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
-                            start_new_session=True, env=env, cwd=str(REPO_ROOT))
+                            start_new_session=True, env=env, cwd=str(cwd))
     return _Child(name, proc, log)
 
 
@@ -175,7 +175,7 @@ def run_fleet(scenario: Scenario, opts: RunOptions) -> RunOutcome:
     router = ZenohLink.open(SessionConfig(mode="router", listen=tuple(listen), connect=tuple(opts.connect)))
     recorder = Recorder(out / "run.mcap", keys, metadata, scenario)
     router.subscribe_raw(keys.all, recorder.write)
-    common = ["--run-id", opts.run_id, "--config", str(scen_path.resolve())]
+    common = ["--run-id", opts.run_id, "--config", str(scen_path.resolve())]  # children run in DIR/logs
     for e in connect_for_children:
         common += ["--connect", e]
     children: list[_Child] = []
@@ -184,10 +184,10 @@ def run_fleet(scenario: Scenario, opts: RunOptions) -> RunOutcome:
     wall_limit = opts.wall_timeout_s or (120.0 + 20.0 * scenario.run.duration_s)
     try:
         children.append(_spawn("sim", [sys.executable, "-m", "sim", *common, "--start-timeout",
-                                       str(opts.start_timeout_s)], out / "logs" / "sim.log"))
+                                       str(opts.start_timeout_s)], out / "logs" / "sim.log", out / "logs"))
         for name in scenario.robot_names:
             children.append(_spawn(name, [sys.executable, "-m", "agent", "--robot", name, *common],
-                                   out / "logs" / f"{name}.log"))
+                                   out / "logs" / f"{name}.log", out / "logs"))
         while True:
             progress.update(recorder.sim_t)
             sim = children[0]

@@ -34,4 +34,6 @@ PAYLOADS: dict[str, dict[str, str]] = {
                    "z": "float", "eta": "float", "claim": "int", "d": "float", "taken": "ints", "park": "floats",
                    "rulings": "any", "ac_x?": "floats", "ac_to?": "strs", "ac_a?": "floats", "ac_e?": "floats", "ac_deg?": "int",
                    "known?": "any", "xf?": "floats"},
+    # E6.6: coordination coordinate xi = s - s_d, its rate, and the formation index.
+    "formation_state": {"xi": "float", "xidot": "float", "formation": "int", "index": "int"},
 }

@@ -601,8 +601,12 @@ class MPCSolver:
         guess: tuple[np.ndarray, np.ndarray] | None = None,
         u_lb=None,
         u_ub=None,
+        _retry: bool = True,
     ) -> SolveResult:
         """Solve from state ``x0`` with parameters; never raises on solver failure.
+
+        An unfinished solve (iteration limit, stalled line search) is restarted once from
+        its own last iterate before the fallback policy applies.
 
         Parameters
         ----------
@@ -672,6 +676,9 @@ class MPCSolver:
         accepted = finite and viol <= self.config.feas_tol and (
             bool(stats.get("success", False)) or status in _ACCEPTABLE
         )
+        if not accepted and finite and _retry:
+            return self.solve(x0, p_stage, p_term, guess=(w[self._x_idx], w[self._u_idx2]),
+                              u_lb=u_lb, u_ub=u_ub, _retry=False)
         if not accepted:
             reason = status if finite else "non-finite solution"
             result = self._fail(f"{reason} (violation {viol:.2g})", x0)

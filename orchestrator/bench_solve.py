@@ -96,7 +96,7 @@ def bench_case(name: str, N: int, solves: int, warmup: int, jit: bool = True) ->
 
         def solve(xe, kappa, u_R, lb, ub):
             t0 = time.perf_counter()
-            shadow.solve(xe, kappa[:1], u_R[:1], np.asarray(lb)[:3], np.asarray(ub)[:3])
+            shadow.solve(xe, kappa[:1], u_R[:1], np.ravel(lb)[:3], np.ravel(ub)[:3])
             times.append(time.perf_counter() - t0)
             return inner(xe, kappa, u_R, lb, ub)
 

@@ -463,9 +463,10 @@ class OmniTrackingNMPC:
         pose = np.asarray(pose, float).reshape(3)
         # unwrap the reference headings next to the robot heading so theta_r - theta
         # is the wrapped error at k = 0 and stays continuous along the horizon
-        th = np.unwrap(ref[:, 2])
-        th += 2 * math.pi * np.round((pose[2] - th[0]) / (2 * math.pi))
-        ref[:, 2] = th
+        th = ref[:, 2]
+        if np.any(np.abs(np.diff(th)) > math.pi):
+            th[:] = np.unwrap(th)
+        th += 2 * math.pi * round((pose[2] - th[0]) / (2 * math.pi))
         plan = self.mpc.shifted_plan()
         x0 = pose.copy()
         if plan is not None:  # keep the robot heading continuous with the plan
@@ -515,7 +516,9 @@ class EightTrajectory:
         xd, yd = self.ax * w * np.cos(w * t), 2 * self.ay * w * np.cos(2 * w * t)
         xdd, ydd = -self.ax * w * w * np.sin(w * t), -4 * self.ay * w * w * np.sin(2 * w * t)
         sp2 = xd * xd + yd * yd
-        th = np.unwrap(np.arctan2(yd, xd))
+        th = np.arctan2(yd, xd)
+        if th.size > 1 and np.any(np.abs(np.diff(th)) > math.pi):
+            th = np.unwrap(th)
         return np.stack([x, y, th, np.sqrt(sp2), (xd * ydd - yd * xdd) / sp2], axis=1)
 
 

@@ -3,11 +3,18 @@
 Per task (one formation of the queue) every robot:
 
 1. agrees with its neighbours on the formation's translation (and rotation) by average
-   consensus on its moment vector (Algorithm 6.1; :mod:`.rotation`), standing still;
+   consensus on its moment vector (Algorithm 6.1; :mod:`.rotation`), standing still. It
+   adopts the estimate once it agrees locally (neighbours and its own last
+   ``consensus_hold_s`` within ``consensus_tol``), or as soon as a neighbour announces an
+   adopted transform: the first agreement floods the team, so every robot places the
+   formation identically (a robot whose neighbours drove off can no longer agree);
 2. picks a position by a local Hungarian problem and negotiates conflicts
    (Algorithm 6.2; :mod:`.assignment`); a robot left without a position waits next to
-   the formation (:func:`.navigation.parking_point`);
-3. drives there with (6.11) and the repulsive target shift (6.12)-(6.15);
+   the formation (:func:`.navigation.parking_point`). With ``relay_positions`` the
+   start positions are relayed over several hops first, so the local problem covers the
+   whole connected team (see :meth:`RolesController._choose`);
+3. drives there with (6.11) and the repulsive target shift (6.12)-(6.15), with a
+   sideways target change when it stands still away from its target;
 4. feeds w_i (1 unfinished, 0 finished) to the PI dynamic consensus (6.16) and moves on
    to the next formation when its z_i reaches the threshold.
 

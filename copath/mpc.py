@@ -27,14 +27,19 @@ Solver (FIELD_NOTES, "CasADi NMPC solve times")
 ``sqpmethod`` with a structure-exploiting QP solver (``qrqp`` by default, ``osqp`` or
 ``qpoases`` on request), a Gauss-Newton Hessian ``2 J_r^T J_r`` (passed as ``hess_lag``),
 JIT compilation with ``compiler="shell"`` when a C compiler works (silently falling back
-to the virtual machine otherwise), and constant bounds pre-built as ``DM``. ``ipopt`` is
-available as ``method="ipopt"``. Warm start: primal and dual solutions of the previous
-solve shifted by one step.
+to the virtual machine otherwise). ``ipopt`` is available as ``method="ipopt"``. Warm
+start: primal and dual solutions of the previous solve shifted by one step. Every call
+goes through the solver's ``FunctionBuffer`` with pre-allocated numpy arrays (constant
+bounds written once), which saves the numpy->DM conversions of a normal call (about
+0.1-0.2 ms per solve here). Measured with ``copath bench solve``: the omni path-following
+NMPC at N = 10 solves in about 0.25-0.35 ms (p50) on this 2-core machine.
 
 Fallback policy
 ---------------
-A solve never raises. If it fails (solver error, non-finite numbers, constraint
-violation above ``feas_tol``), :meth:`MPCSolver.solve` returns a :class:`SolveResult`
+A solve never raises. An unfinished solve (iteration limit, stalled line search) is
+restarted once from its own iterate. If it still fails (solver error, non-finite
+numbers, constraint violation above ``feas_tol``), :meth:`MPCSolver.solve` logs a
+warning and returns a :class:`SolveResult`
 with ``ok=False`` whose plan is the previous plan shifted by one step (``fallback =
 "shifted"``) while one is left, else the ``stop`` input repeated (``fallback = "stop"``).
 
@@ -55,7 +60,14 @@ Parameters reach the problem per stage (``p_stage``: (N, n_p), row k seen by sta
 and ``p_stage[N-1]`` also by the terminal terms unless ``n_pt`` terminal parameters
 are declared) and per horizon end (``p_term``: (n_pt,)). ``res.x`` (N+1, nx) and
 ``res.u`` (N, nu) are the predicted plan; ``mpc.shifted_plan()`` gives the warm start
-of the next solve, and ``mpc.reset()`` forgets it.
+of the next solve, ``mpc.set_initial_guess(X, U)`` replaces it, and ``mpc.reset()``
+forgets it. ``solve(..., guess=(X, U))`` overrides the warm start once and
+``solve(..., u_lb=..., u_ub=...)`` replaces the input bounds for one solve.
+
+Helpers for controllers: :class:`SolverFields` (inherit it in a controller config to
+accept ``solver``, ``qp_solver``, ``hessian``, ``max_iter``, ``jit``, ``tol`` and the
+slack weights in the scenario table), :class:`PathTable` (fast x, y, theta, kappa,
+dkappa/ds look-ups along a horizon) and :func:`rk4`.
 """
 
 from __future__ import annotations

@@ -456,9 +456,7 @@ class MPCSolver:
         lbw += [x_lb, np.zeros(n_slack)]
         ubw += [x_ub, np.full(n_slack, np.inf)]
         self._lbw_np, self._ubw_np = np.concatenate(lbw), np.concatenate(ubw)
-        self._lbw, self._ubw = ca.DM(self._lbw_np), ca.DM(self._ubw_np)
         self._lbg_np, self._ubg_np = np.concatenate(lbg), np.concatenate(ubg)
-        self._lbg, self._ubg = ca.DM(self._lbg_np), ca.DM(self._ubg_np)
         self._stop_u = np.zeros(nu) if o.stop_u is None else np.asarray(o.stop_u, float).reshape(nu)
         self._u_lb, self._u_ub = u_lb, u_ub
 
@@ -546,6 +544,11 @@ class MPCSolver:
             return None
         w = self._plan_w[self._w_shift]
         return w[self._x_idx], w[self._u_idx2]
+
+    @property
+    def u_bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """Copies of the OCP's input bounds, each (N, nu) (edit and pass to :meth:`solve`)."""
+        return self._u_lb.copy(), self._u_ub.copy()
 
     def reset(self) -> None:
         """Forget the warm start and the fallback plan."""

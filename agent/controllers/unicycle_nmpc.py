@@ -324,8 +324,7 @@ class UnicycleNMPC:
         p_term = np.concatenate([stage_p[N], tr])
         u_lb = u_ub = None
         if sdot_fixed is not None:
-            lo = self.mpc._u_lb.copy()
-            hi = self.mpc._u_ub.copy()
+            lo, hi = self.mpc.u_bounds
             lo[:, 0] = hi[:, 0] = sdot_fixed
             u_lb, u_ub = lo, hi
         guess = None

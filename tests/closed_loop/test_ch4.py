@@ -9,7 +9,6 @@ tolerances. JIT compilation is switched off here: it changes solve times, not re
 from __future__ import annotations
 
 import copy
-import math
 import tomllib
 
 import numpy as np

@@ -271,14 +271,13 @@ class LTVPathFollowingQP:
             io[4][:] = np.ravel(ub)
             self._trigger()
             U = self._out.copy()
-            ok = bool(np.isfinite(U).all()) and bool(np.all(U >= io[3] - 1e-6)) and bool(np.all(U <= io[4] + 1e-6))
-            status = "solved" if ok else "infeasible or non-finite"
+            if np.isfinite(U).all() and (U >= io[3] - 1e-6).all() and (U <= io[4] + 1e-6).all():
+                self._last = U.reshape(N, 3)
+                return LTVSolution(True, self._last, "solved")
+            status = "infeasible or non-finite"
         except Exception as exc:  # never raise out of a control step
-            ok, status, U = False, f"exception: {exc}", None
+            status = f"exception: {exc}"
         lb, ub = io[3].copy(), io[4].copy()
-        if ok:
-            self._last = U.reshape(N, 3)
-            return LTVSolution(True, self._last, status)
         logger.warning("LTV QP failed (%s), using fallback", status)
         if self._last is not None and len(self._last) > 1:
             self._last = np.vstack([self._last[1:], self._last[-1:]])

@@ -383,3 +383,19 @@ def test_omni_pf_nmpc_solution_respects_wheel_box(eight):
     np.testing.assert_allclose(model.wheel_speeds(sol.body), sol.wheels, atol=1e-9)
     assert sol.sdot.shape == (5,) and np.all(sol.sdot >= -1e-9)
     assert wrap_to_pi(0.0) == 0.0
+
+
+def test_ltv_qp_fallback_on_infeasible_bounds():
+    """An infeasible QP (lb > ub) never raises: shifted previous plan, else clipped zeros."""
+    N = 3
+    qp = LTVPathFollowingQP(N, 0.05, [300, 300, 7, 70], [1, 0.001, 3], jit=False)
+    xe, kap, uR = np.array([0.05, -0.03, 0.02, 0.01]), np.full(N, 1.0), np.full(N, 1.0)
+    good = qp.solve(xe, kap, uR, np.full(3 * N, -1.0), np.full(3 * N, 1.0))
+    assert good.ok
+    lb, ub = np.full(3 * N, 0.5), np.full(3 * N, -0.5)
+    bad = qp.solve(xe, kap, uR, lb, ub)
+    assert not bad.ok
+    np.testing.assert_allclose(bad.U[0], np.clip(good.U[1], 0.5, -0.5))
+    for _ in range(3):
+        bad = qp.solve(xe, kap, uR, lb, ub)
+    assert not bad.ok and np.all(np.isfinite(bad.U))

@@ -26,6 +26,7 @@ from copath.paths import Path, wrap_to_pi
 from .base import Observation, Outgoing, PeerMessage, RobotContext, StepResult
 
 __all__ = [
+    "ConsensusGains",
     "ConsensusConfig",
     "ConsensusController",
     "NeighbourState",
@@ -38,8 +39,9 @@ __all__ = [
 
 
 @dataclass(frozen=True)
-class ConsensusConfig:
-    """Gains and references of Sec. 5.5 (published values of E5.4 as defaults)."""
+class ConsensusGains:
+    """Gains of the Sec. 5.5 law (published values of E5.4 as defaults); shared by every
+    controller built on (5.39)-(5.42)."""
 
     v0: float = 0.2
     """Group speed v_0 = v_di for every robot [m/s] (5.35)."""
@@ -57,10 +59,27 @@ class ConsensusConfig:
     """Speed-tracking gain of (5.42)."""
     theta_a: float = math.pi / 4
     """Transient heading amplitude theta_a of delta(y_e) [rad]."""
-    s_d: float = 0.0
-    """This robot's desired coordination offset s_di [m]; s_dij = s_di - s_dj."""
     sdot_max: float = 0.5
     """Upper bound of the virtual-vehicle speed [m/s] (chosen: the unicycle's v_max)."""
+
+    def __post_init__(self) -> None:
+        for k in ("k1", "k2", "k3", "k4", "k5", "k6"):
+            require(getattr(self, k) > 0, k, getattr(self, k), "gains of (5.39)-(5.42) must be > 0")
+        require(self.v0 >= 0, "v0", self.v0, "must be >= 0")
+        require(self.sdot_max > 0, "sdot_max", self.sdot_max, "must be > 0")
+        require(0 < self.theta_a < math.pi / 2, "theta_a", self.theta_a, "must be in (0, pi/2)")
+
+    def gains(self) -> dict:
+        """The gain fields only (to build another gains-based config)."""
+        return {f: getattr(self, f) for f in ConsensusGains.__dataclass_fields__}
+
+
+@dataclass(frozen=True)
+class ConsensusConfig(ConsensusGains):
+    """Parameters of one robot of the Sec. 5.5 team."""
+
+    s_d: float = 0.0
+    """This robot's desired coordination offset s_di [m]; s_dij = s_di - s_dj."""
     s0: float | None = None
     """Initial path coordinate [m]; default: projection of the first pose onto the path."""
     extrapolate: bool = True
@@ -69,11 +88,7 @@ class ConsensusConfig:
     """Neighbour information older than this is ignored [s]."""
 
     def __post_init__(self) -> None:
-        for k in ("k1", "k2", "k3", "k4", "k5", "k6"):
-            require(getattr(self, k) > 0, k, getattr(self, k), "gains of (5.39)-(5.42) must be > 0")
-        require(self.v0 >= 0, "v0", self.v0, "must be >= 0")
-        require(self.sdot_max > 0, "sdot_max", self.sdot_max, "must be > 0")
-        require(0 < self.theta_a < math.pi / 2, "theta_a", self.theta_a, "must be in (0, pi/2)")
+        super().__post_init__()
         require(self.stale_after_s > 0, "stale_after_s", self.stale_after_s, "must be > 0")
 
 

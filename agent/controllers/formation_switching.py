@@ -35,6 +35,7 @@ from copath.offsets import Quintic, offset_state
 from .base import Observation, Outgoing, PeerMessage, RobotContext, StepResult
 from .consensus import (
     ConsensusConfig,
+    ConsensusGains,
     NeighbourState,
     consensus_acceleration,
     project_onto_path,
@@ -49,7 +50,7 @@ MESSAGE_KIND = "formation_state"
 
 
 @dataclass(frozen=True)
-class FormationSwitchingConfig:
+class FormationSwitchingConfig(ConsensusGains):
     """Parameters of E6.6: the Sec. 5.5 gains, this robot's slots and the switch schedule."""
 
     slots: tuple[tuple[float, float], ...] = ()
@@ -60,18 +61,6 @@ class FormationSwitchingConfig:
     per switch, increasing)."""
     transition_m: float = 2.0
     """Length of a transition in the robot's own path coordinate [m]."""
-    v0: float = 0.2
-    """Group speed v_0 [m/s]."""
-    k1: float = 5.0
-    k2: float = 0.5
-    k3: float = 0.2
-    k4: float = 0.25
-    k5: float = 1.0
-    k6: float = 0.2
-    theta_a: float = math.pi / 4
-    """Gains of (5.39)-(5.42) (E5.4 values by default)."""
-    sdot_max: float = 0.5
-    """Upper bound of the virtual-vehicle speed [m/s]."""
     k_r: float = 0.2
     """Repulsion gain of (6.12)."""
     R_max: float = 0.4
@@ -94,6 +83,7 @@ class FormationSwitchingConfig:
     """Neighbour information older than this is ignored [s]."""
 
     def __post_init__(self) -> None:
+        super().__post_init__()
         require(len(self.slots) >= 1, "slots", self.slots, "need (s_d, q) for at least one formation")
         require(len(self.switch_at) == len(self.slots) - 1, "switch_at", self.switch_at,
                 f"need one entry per switch ({len(self.slots) - 1} for {len(self.slots)} slots)")
@@ -105,8 +95,7 @@ class FormationSwitchingConfig:
 
     def consensus(self) -> ConsensusConfig:
         """The Sec. 5.5 gains as the consensus module's config."""
-        return ConsensusConfig(v0=self.v0, k1=self.k1, k2=self.k2, k3=self.k3, k4=self.k4, k5=self.k5,
-                               k6=self.k6, theta_a=self.theta_a, sdot_max=self.sdot_max)
+        return ConsensusConfig(**self.gains())
 
 
 class FormationSwitchingController:

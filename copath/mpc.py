@@ -492,8 +492,8 @@ class MPCSolver:
             opts["ipopt"] = {"print_level": 0, "max_iter": c.max_iter, "tol": c.tol,
                              "sb": "yes", "warm_start_init_point": "yes",
                              "mu_init": 1e-3, "acceptable_tol": 1e-4}
-            if c.hessian == "gauss-newton":
-                opts["hess_lag"] = self._gn_hessian(use_jit)
+            if c.hessian == "gauss-newton":  # ipopt takes the upper triangle only
+                opts["hess_lag"] = self._gn_hessian(use_jit, upper=True)
             return ca.nlpsol(f"{self.ocp.name}_ipopt", "ipopt", nlp, opts)
         qp_opts: dict = {}
         if c.qp_solver == "qrqp":
@@ -519,12 +519,14 @@ class MPCSolver:
             opts["hess_lag"] = self._gn_hessian(use_jit)
         return ca.nlpsol(f"{self.ocp.name}_sqp", "sqpmethod", nlp, opts)
 
-    def _gn_hessian(self, use_jit: bool) -> ca.Function:
+    def _gn_hessian(self, use_jit: bool, upper: bool = False) -> ca.Function:
         """Gauss-Newton Hessian of the Lagrangian: lam_f * 2 J_r^T J_r (+ tiny regulariser)."""
         lam_f = ca.SX.sym("lam_f")
         lam_g = ca.SX.sym("lam_g", self._g.numel())
         J = ca.jacobian(self._r, self._w)
         H = lam_f * 2 * ca.mtimes(J.T, J) + 1e-9 * ca.SX.eye(self._nw)
+        if upper:
+            H = ca.triu(H)
         opts = self._jit_opts() if use_jit else {}
         return ca.Function("nlp_hess_l", [self._w, self._p, lam_f, lam_g], [H],
                            ["x", "p", "lam_f", "lam_g"], ["hess_gamma_x_x"], opts)

@@ -33,7 +33,7 @@ from copath.offsets import Quintic, offset_state
 from copath.paths import Path, wrap_to_pi
 
 from .base import Observation, Outgoing, PeerMessage, RobotContext, StepResult
-from .omni_nmpc import OmniPathFollowingNMPC, OmniPFConfig, OmniTrackingNMPC, _OmniCommon, check_gain_conditions
+from .omni_nmpc import OmniPathFollowingNMPC, OmniPFConfig, OmniTrackingNMPC, OmniNMPCFields, check_gain_conditions
 
 __all__ = [
     "PathLeader",
@@ -354,7 +354,7 @@ class LeaderConfig(_FormationFields, OmniPFConfig):
 
 
 @dataclass(frozen=True)
-class FollowerConfig(_FormationFields, _OmniCommon):
+class FollowerConfig(_FormationFields, OmniNMPCFields):
     """A follower of Sec. 5.3: trajectory-tracking NMPC (5.8) with E5.1 values as defaults."""
 
     horizon: int = 3

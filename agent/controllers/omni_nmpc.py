@@ -42,6 +42,7 @@ from copath.paths import Path, wrap_to_pi
 from .base import Observation, PeerMessage, RobotContext, StepResult
 
 __all__ = [
+    "OmniNMPCFields",
     "pf_errors",
     "pf_error_dynamics",
     "pf_virtual_inputs",
@@ -541,7 +542,7 @@ class PathTrajectory:
 
 
 @dataclass(frozen=True)
-class _OmniCommon(SolverFields):
+class OmniNMPCFields(SolverFields):
     horizon: int = 3
     """Prediction horizon N_p = N_c (E4.1/E4.2: 3)."""
     Q: tuple[float, float, float] = (0.5, 0.5, 0.5)
@@ -571,7 +572,7 @@ class _OmniCommon(SolverFields):
 
 
 @dataclass(frozen=True)
-class OmniPFConfig(_OmniCommon):
+class OmniPFConfig(OmniNMPCFields):
     """Path-following NMPC (Sec. 4.2; published values of E4.2)."""
 
     u_R: float = 1.0
@@ -642,7 +643,7 @@ class OmniPathFollowingController:
 
 
 @dataclass(frozen=True)
-class OmniTTConfig(_OmniCommon):
+class OmniTTConfig(OmniNMPCFields):
     """Trajectory-tracking NMPC (Sec. 4.2; published values of E4.1)."""
 
     trajectory: str = "eight"

@@ -26,3 +26,17 @@ def config(prefix: str) -> pathlib.Path:
     if len(matches) != 1:
         raise FileNotFoundError(f"expected one config starting with {prefix!r}, found {matches}")
     return matches[0]
+
+
+def is_connected(A) -> bool:
+    """Whether the undirected graph with boolean adjacency matrix ``A`` is connected."""
+    import numpy as np
+
+    seen, stack = {0}, [0]
+    while stack:
+        i = stack.pop()
+        for j in np.nonzero(A[i])[0]:
+            if j not in seen:
+                seen.add(int(j))
+                stack.append(int(j))
+    return len(seen) == len(A)

@@ -8,7 +8,7 @@ import pytest
 
 from copath.scenario import load_scenario
 from orchestrator.inprocess import run_scenario
-from tests.conftest import CONFIGS, config
+from tests.conftest import CONFIGS, config, is_connected
 
 FAULTS = {"delay_ms": 100, "loss": 0.1}
 
@@ -118,15 +118,7 @@ def test_shape_files_are_usable_by_robots_of_6_cm():
         assert P.shape == (m, 2)
         D = np.hypot(*(P[:, None] - P[None]).transpose(2, 0, 1)) + np.eye(m) * 1e9
         assert D.min() >= 0.4  # > 2 x 0.06 m and beyond R_max
-        A = D < 1.2
-        seen, stack = {0}, [0]
-        while stack:
-            i = stack.pop()
-            for j in np.nonzero(A[i])[0]:
-                if j not in seen:
-                    seen.add(j)
-                    stack.append(j)
-        assert len(seen) == m
+        assert is_connected(D < 1.2)
 
 
 @pytest.mark.slow

@@ -32,22 +32,12 @@ from agent.controllers.roles.rotation import (
 )
 from copath.config import ConfigError, from_table
 from copath.models import UnicycleModel
+from tests.conftest import is_connected
 
 
 def _random_graph(P, r):
     D = np.hypot(*(P[:, None] - P[None]).transpose(2, 0, 1))
     return (D < r) & ~np.eye(len(P), dtype=bool)
-
-
-def _connected(A):
-    seen, stack = {0}, [0]
-    while stack:
-        i = stack.pop()
-        for j in np.nonzero(A[i])[0]:
-            if j not in seen:
-                seen.add(j)
-                stack.append(j)
-    return len(seen) == len(A)
 
 
 # -- Algorithm 6.1: principal axis --------------------------------------------------------
@@ -77,7 +67,7 @@ def test_algorithm_6_1_over_consensus_agrees_with_the_centralised_axis(seed):
     while True:
         P = rng.uniform(0, 3, (10, 2)) * np.array([1.0, 0.4])
         A = _random_graph(P, 1.2)
-        if _connected(A):
+        if is_connected(A):
             break
     C = np.cov(P.T, bias=True)
     lam, V = np.linalg.eigh(C)
@@ -302,7 +292,7 @@ def test_pi_consensus_tracks_the_fraction_of_unfinished_robots(seed, team):
     while True:
         P = rng.uniform(-1.5, 1.5, (n, 2))
         A = _random_graph(P, r)
-        if _connected(A):
+        if is_connected(A):
             break
     finish = rng.uniform(5.0, 15.0, n)
     finish[rng.integers(n)] = np.inf  # one robot never finishes

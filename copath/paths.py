@@ -108,14 +108,11 @@ class Path:
             round((self._theta_tab[-1] - self._theta_tab[0]) / (2 * math.pi)) if self.closed else 0
         )
         k = self._kappa_phi(phi)
-        self._kappa_tab = k
         self._dkappa_tab = np.gradient(k, s)
         p0 = self._r(np.array([curve.phi0]))[0]
         p1 = self._r(np.array([curve.phi1]))[0]
         if self.closed and np.hypot(*(p1 - p0)) > 1e-6 * max(1.0, self.length):
             raise ValueError(f"path {curve.name!r} is declared closed but its ends differ")
-        self._start = p0
-        self._end = p1
         self._cas = None
 
     # -- derivatives of the parametric curve (5-point stencils) -------------------

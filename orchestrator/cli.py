@@ -19,7 +19,6 @@ import json
 import logging
 import pathlib
 import sys
-import time
 from typing import Sequence
 
 from copath.scenario import ConfigError, Scenario, load_scenario

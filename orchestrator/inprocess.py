@@ -53,6 +53,7 @@ def run_scenario(scenario: Scenario, duration_s: float | None = None, run_id: st
     world = World(scenario)
     robots = {n: RobotRuntime(scenario, n, keys) for n in scenario.robot_names}
     subs = {n: r.subscriptions for n, r in robots.items()}
+    receivers_of: dict[str, list[str]] = {}  # key -> subscribed robots, computed once per key
     records: list[tuple[int, str, Any]] = []
 
     def publish(t: float, key: str, rec: Any) -> None:
@@ -72,9 +73,10 @@ def run_scenario(scenario: Scenario, duration_s: float | None = None, run_id: st
         for n, out in outs.items():
             for key, env in out.peers:
                 publish(t, key, env)
-                for r, patterns in subs.items():
-                    if r != n and _matches(key, patterns):
-                        robots[r].receive(env)
+                if key not in receivers_of:
+                    receivers_of[key] = [r for r, patterns in subs.items() if r != n and _matches(key, patterns)]
+                for r in receivers_of[key]:
+                    robots[r].receive(env)
             publish(t, keys.cmd(n), out.command)
             publish(t, keys.telemetry(n), out.telemetry)
             world.command(n, out.command.cmd)

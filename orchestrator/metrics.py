@@ -19,7 +19,6 @@ Definitions (errors are taken after ``run.settle_s``):
 from __future__ import annotations
 
 import itertools
-import math
 from dataclasses import dataclass, field
 from typing import Any
 

@@ -23,7 +23,7 @@ from copath.scenario import ConfigError, Scenario, load_scenario
 from copath.wire.cli import add_config_arguments, session_config_from_args
 from copath.wire.keys import Keys
 from copath.wire.messages import Command, End, Event, Start, Stats
-from copath.wire.session import SessionConfig, ZenohLink
+from copath.wire.session import ZenohLink
 
 from .world import World
 

@@ -17,7 +17,6 @@ instant it was sent, which makes lockstep runs independent of process scheduling
 from __future__ import annotations
 
 import heapq
-import math
 import zlib
 from dataclasses import dataclass
 

@@ -12,7 +12,6 @@ other than float64; FIELD_NOTES).
 from __future__ import annotations
 
 import dataclasses
-import math
 from dataclasses import dataclass, field
 from typing import Any, ClassVar, Mapping
 
@@ -291,6 +290,3 @@ def unpack(data: bytes | bytearray | memoryview):
         raise WireError(f"unknown record type {d.get('type')!r}")
     return cls.from_dict(d)
 
-
-def finite(x: float) -> bool:
-    return isinstance(x, (int, float)) and math.isfinite(x)

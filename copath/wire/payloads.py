@@ -4,12 +4,10 @@ Each entry maps a field name to its type: ``float``, ``int``, ``bool``, ``str``,
 ``floats`` (list of numbers), ``ints``, ``points`` (list of [x, y]) or ``any``. A name
 ending in ``?`` is optional. Receivers validate every payload against this table
 (``copath.wire.messages.validate_payload``) and count what they reject; bump
-``PAYLOAD_VERSION`` when a field changes meaning.
+``copath.wire.messages.WIRE_VERSION`` (carried by every record) when a field changes meaning.
 """
 
 from __future__ import annotations
-
-PAYLOAD_VERSION = 1
 
 PAYLOADS: dict[str, dict[str, str]] = {
     # Sec. 5.5: path coordinate and virtual-vehicle speed, (5.42); receivers

@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from agent.controllers import build_controller
-from agent.controllers.base import Observation, PeerMessage, RobotContext
+from copath.control import Observation, PeerMessage, RobotContext
 from copath.scenario import Scenario
 from copath.wire.faults import FaultyInbox, LinkFaults
 from copath.wire.keys import Keys

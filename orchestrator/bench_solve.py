@@ -24,7 +24,7 @@ from typing import Callable
 import numpy as np
 
 from agent.controllers import build_controller
-from agent.controllers.base import Observation, RobotContext
+from copath.control import Observation, RobotContext
 from copath.scenario import load_scenario
 
 __all__ = ["add_arguments", "run", "CONTROLLERS", "TABLE_4_1_MS"]

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import importlib
 
-from .base import Controller, RobotContext
+from copath.control import Controller, RobotContext
 
 __all__ = ["CONTROLLERS", "build_controller"]
 

@@ -23,7 +23,7 @@ import numpy as np
 from copath.config import from_table, require
 from copath.paths import Path, wrap_to_pi
 
-from .base import Observation, Outgoing, PeerMessage, RobotContext, StepResult
+from copath.control import Observation, Outgoing, PeerMessage, RobotContext, StepResult
 
 __all__ = [
     "ConsensusGains",

@@ -49,7 +49,7 @@ from copath.morphing import Morphing, morphing
 from copath.mpc import OCP, MPCSolver, PathTable, SolverFields, weighted
 from copath.paths import Path, wrap_to_pi
 
-from .base import Observation, Outgoing, PeerMessage, RobotContext, StepResult
+from copath.control import Observation, Outgoing, PeerMessage, RobotContext, StepResult
 from .consensus import project_onto_path
 
 __all__ = [

@@ -32,7 +32,7 @@ import numpy as np
 from copath.config import from_table, require
 from copath.offsets import Quintic, offset_state
 
-from .base import Observation, Outgoing, PeerMessage, RobotContext, StepResult
+from copath.control import Observation, Outgoing, PeerMessage, RobotContext, StepResult
 from .consensus import (
     ConsensusConfig,
     ConsensusGains,

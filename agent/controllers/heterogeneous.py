@@ -37,7 +37,7 @@ from copath.config import ConfigError, from_table, require
 from copath.models import integrate_body_velocity
 from copath.paths import wrap_to_pi
 
-from .base import Observation, Outgoing, PeerMessage, RobotContext, StepResult
+from copath.control import Observation, Outgoing, PeerMessage, RobotContext, StepResult
 from .consensus import tracking_errors, tracking_law
 from .leader_following import PathLeader, TabulatedPath
 from .omni_nmpc import OmniPFConfig

@@ -32,7 +32,7 @@ from copath.mpc import PathTable
 from copath.offsets import Quintic, offset_state
 from copath.paths import Path, wrap_to_pi
 
-from .base import Observation, Outgoing, PeerMessage, RobotContext, StepResult
+from copath.control import Observation, Outgoing, PeerMessage, RobotContext, StepResult
 from .omni_nmpc import OmniPathFollowingNMPC, OmniPFConfig, OmniTrackingNMPC, OmniNMPCFields, check_gain_conditions
 
 __all__ = [

@@ -32,7 +32,7 @@ from copath.models import OmniModel, rotation_speed_limit
 from copath.mpc import PathTable, jit_available
 from copath.paths import Path, wrap_to_pi
 
-from .base import Observation, PeerMessage, RobotContext, StepResult
+from copath.control import Observation, PeerMessage, RobotContext, StepResult
 
 __all__ = [
     "ltv_errors",

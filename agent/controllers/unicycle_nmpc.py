@@ -34,7 +34,7 @@ from copath.models import UnicycleModel
 from copath.mpc import OCP, MPCSolver, PathTable, SolveResult, SolverConfig, SolverFields, weighted
 from copath.paths import Path, wrap_to_pi
 
-from .base import Observation, PeerMessage, RobotContext, StepResult
+from copath.control import Observation, PeerMessage, RobotContext, StepResult
 
 __all__ = [
     "uni_errors",

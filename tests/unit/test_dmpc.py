@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from agent.controllers.base import Observation, PeerMessage, RobotContext
+from copath.control import Observation, PeerMessage, RobotContext
 from agent.controllers.dmpc import AssumedTrajectory, DMPCController, assumed_trajectory, build, terminal_rollout
 from copath.config import ConfigError
 from copath.models import OmniModel

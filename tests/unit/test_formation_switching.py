@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from agent.controllers.base import Observation, RobotContext
+from copath.control import Observation, RobotContext
 from agent.controllers.formation_switching import FormationSwitchingConfig, build
 from copath.config import ConfigError, from_table
 from copath.models import UnicycleModel

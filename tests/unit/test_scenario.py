@@ -55,7 +55,7 @@ def test_bad_values_are_refused_with_key_value_and_rule(over, pattern):
 
 def test_unknown_controller_parameter_is_refused_when_the_controller_is_built():
     from agent.controllers import build_controller
-    from agent.controllers.base import RobotContext
+    from copath.control import RobotContext
     from copath.models import UnicycleModel
 
     s = parse_scenario(_base(controller={"type": "consensus", "k7": 1.0}))

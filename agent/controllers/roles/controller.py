@@ -37,7 +37,7 @@ import numpy as np
 from copath.config import from_table
 from copath.models import UnicycleModel
 
-from ..base import Observation, Outgoing, PeerMessage, RobotContext, StepResult
+from copath.control import Observation, Outgoing, PeerMessage, RobotContext, StepResult
 from .assignment import Claim, RoleBook, Ruling, local_hungarian, nearest_position
 from .config import RolesConfig
 from .consensus import AverageConsensus, NeighbourContribution, PIConsensus

@@ -2,7 +2,8 @@
 
 The TOML layout (every table optional unless said)::
 
-    id = "e5.5"                      # experiment id of SPEC section 3, lower case
+    id = "my-test"                   # free scenario name: letters, digits, "-", "_", "."
+    experiment = "e5.5"              # optional: the dissertation experiment it reproduces
     title = "..."
     [run]       duration_s, dt, clock ("lockstep" | "realtime"), settle_s, seed,
                 tick_timeout_s, rate_hz (realtime controller rate; default 1/dt)
@@ -33,6 +34,7 @@ import csv
 import json
 import math
 import pathlib
+import re
 import tomllib
 from dataclasses import dataclass, field
 from typing import Any, Mapping
@@ -55,6 +57,9 @@ __all__ = [
 ]
 
 CLOCKS = ("lockstep", "realtime")
+_ID_RE = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]*")
+_CONTROLLER_RE = re.compile(r"[A-Za-z_][\w.-]*|[A-Za-z_][\w.]*:[A-Za-z_]\w*")
+_EXPERIMENT_RE = re.compile(r"e[4-6]\.[0-9]+")
 
 
 @dataclass(frozen=True)
@@ -165,6 +170,9 @@ class ObstacleSpec:
 @dataclass(frozen=True)
 class Scenario:
     id: str
+    """The scenario's name (free text: letters, digits, ``-_.``)."""
+    experiment: str | None
+    """The dissertation experiment it reproduces (e.g. ``"e5.5"``), or None."""
     title: str
     run: RunConfig
     network: NetworkConfig
@@ -206,7 +214,7 @@ class Scenario:
         return parse_scenario(raw, base_dir=None, source=self.source)
 
 
-_TOP_KEYS = {"_source", "id", "title", "run", "network", "noise", "sensors", "paths", "controller", "robots",
+_TOP_KEYS = {"_source", "id", "experiment", "title", "run", "network", "noise", "sensors", "paths", "controller", "robots",
              "obstacles", "metrics", "notes"}
 
 
@@ -258,8 +266,12 @@ def parse_scenario(raw: Mapping[str, Any], base_dir: pathlib.Path | None = None,
     for k in raw:
         require(k in _TOP_KEYS, k, raw[k], f"allowed top-level keys: {', '.join(sorted(_TOP_KEYS))}")
     sid = raw.get("id")
-    require(isinstance(sid, str) and sid == sid.lower() and sid.startswith("e"), "id", sid,
-            "expected the lower-case experiment id of SPEC section 3, e.g. 'e5.5'")
+    require(isinstance(sid, str) and _ID_RE.fullmatch(sid) is not None, "id", sid,
+            "expected a scenario name of letters, digits, '-', '_' and '.', e.g. 'my-test'")
+    experiment = raw.get("experiment")
+    require(experiment is None or (isinstance(experiment, str) and _EXPERIMENT_RE.fullmatch(experiment) is not None),
+            "experiment", experiment,
+            "expected a dissertation experiment id in lower case, e.g. 'e5.5' (or leave the key out)")
     run = from_table(RunConfig, raw.get("run"), "run")
     net_tab = dict(raw.get("network") or {})
     parts = []
@@ -312,9 +324,9 @@ def parse_scenario(raw: Mapping[str, Any], base_dir: pathlib.Path | None = None,
                     "must list other robots of this scenario")
         params = {**defaults, **dict(r.get("controller") or {})}
         kind = params.pop("type", None)
-        from agent.controllers import CONTROLLERS  # registry of names only (lazy builders)
-
-        require(kind in CONTROLLERS, f"robots.{name}.controller.type", kind, f"allowed: {', '.join(sorted(CONTROLLERS))}")
+        require(isinstance(kind, str) and _CONTROLLER_RE.fullmatch(kind) is not None, f"robots.{name}.controller.type",
+                kind, "expected a registered controller name (see `copath controllers`) or an import path "
+                "'package.module:builder'")
         robots.append(RobotSpec(name, model, pose, path, nbrs, kind, params))
     # the fixed graph must be undirected: neighbour lists are symmetrised
     sym = {r.name: set(r.neighbours) for r in robots}
@@ -341,6 +353,7 @@ def parse_scenario(raw: Mapping[str, Any], base_dir: pathlib.Path | None = None,
     metrics = dict(raw.get("metrics") or {})
     return Scenario(
         id=sid,
+        experiment=experiment,
         title=str(raw.get("title", sid)),
         run=run,
         network=network,

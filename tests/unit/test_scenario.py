@@ -22,7 +22,14 @@ def test_every_shipped_config_is_valid_and_named_by_its_experiment_id():
     assert files
     for f in files:
         s = load_scenario(f)
-        assert f.name.startswith(s.id + "-"), f.name
+        assert s.experiment and f.name.startswith(s.experiment + "-"), f.name
+        assert s.id == f.stem
+
+
+def test_scenarios_take_any_name_and_an_optional_experiment_id():
+    s = parse_scenario(_base(id="my-test_2.b"))
+    assert s.id == "my-test_2.b" and s.experiment is None
+    assert parse_scenario(_base(experiment="e5.5")).experiment == "e5.5"
 
 
 def test_neighbour_lists_are_made_symmetric():
@@ -34,12 +41,13 @@ def test_neighbour_lists_are_made_symmetric():
 @pytest.mark.parametrize(
     "over, pattern",
     [
-        ({"id": "E5.5"}, r"id = 'E5.5' is not allowed"),
+        ({"id": "my test!"}, r"id = 'my test!' is not allowed; expected a scenario name"),
+        ({"experiment": "E5.5"}, r"experiment = 'E5.5' is not allowed; expected a dissertation experiment id"),
         ({"run": {"clock": "fast"}}, r"run.clock = 'fast' is not allowed; allowed: lockstep, realtime"),
         ({"run": {"dt": -1}}, r"run.dt = -1.0 is not allowed; must be > 0"),
         ({"run": {"dtt": 0.1}}, r"run.dtt = 0.1 is not allowed; allowed keys"),
         ({"network": {"loss": 1.5}}, r"network.loss = 1.5 is not allowed; must be a probability"),
-        ({"controller": {"type": "magic"}}, r"controller.type = 'magic' is not allowed"),
+        ({"controller": {"type": "no such thing"}}, r"controller.type = 'no such thing' is not allowed"),
         ({"robots": [{"name": "r1", "path": "nowhere"}]}, r"robots.r1.path = 'nowhere' is not allowed"),
         ({"robots": [{"name": "r1", "neighbours": ["r9"]}]}, r"robots.r1.neighbours = \['r9'\] is not allowed"),
         ({"robots": [{"name": "r1", "pose": [0, 0]}]}, r"robots.r1.pose = \[0, 0\] is not allowed; expected 3 numbers"),

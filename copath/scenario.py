@@ -18,6 +18,7 @@ The TOML layout (every table optional unless said)::
                 neighbours = [...], [robots.controller] per-robot overrides
     [[obstacles]] vertices = [[x, y], ...], velocity = [vx, vy] (optional)
     [metrics]   coordination_pairs = "all" | "edges"
+    [targets]   metric key = threshold, e.g. coordination_error_max_m = 0.1 (copath.targets)
 
 Controller parameters whose key ends in ``_file`` (a string) or ``_files`` (a list) are
 data files relative to the scenario file; the loader replaces them by their content
@@ -42,6 +43,7 @@ from typing import Any, Mapping
 from .config import ConfigError, as_float_tuple, from_table, require
 from .models import OmniModel, UnicycleModel, make_model
 from .paths import Path, make_path
+from .targets import Target, parse_targets
 
 __all__ = [
     "Scenario",
@@ -186,6 +188,8 @@ class Scenario:
     """The table the scenario was parsed from (recorded as MCAP metadata)."""
     source: str = ""
     """File name the scenario came from, if any."""
+    targets: tuple[Target, ...] = ()
+    """Goals a run is graded against (``[targets]``, :func:`copath.targets.grade`)."""
 
     @property
     def robot_names(self) -> tuple[str, ...]:
@@ -215,7 +219,7 @@ class Scenario:
 
 
 _TOP_KEYS = {"_source", "id", "experiment", "title", "run", "network", "noise", "sensors", "paths", "controller", "robots",
-             "obstacles", "metrics", "notes"}
+             "obstacles", "metrics", "targets", "notes"}
 
 
 def _load_data_file(base_dir: pathlib.Path | None, name: str, key: str) -> Any:
@@ -351,6 +355,7 @@ def parse_scenario(raw: Mapping[str, Any], base_dir: pathlib.Path | None = None,
         obstacles.append(ObstacleSpec(vs, vel))
 
     metrics = dict(raw.get("metrics") or {})
+    targets = parse_targets(raw.get("targets"))
     return Scenario(
         id=sid,
         experiment=experiment,
@@ -365,6 +370,7 @@ def parse_scenario(raw: Mapping[str, Any], base_dir: pathlib.Path | None = None,
         metrics=metrics,
         raw=raw,
         source=source,
+        targets=targets,
     )
 
 

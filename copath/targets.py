@@ -1,0 +1,110 @@
+"""Scenario targets: the ``[targets]`` table and how a run's metrics are graded against it.
+
+A target names a metric of ``metrics.json`` and a threshold, e.g.
+``coordination_error_max_m = 0.1`` for the "coordination errors < 10 cm" of Sec. 5.5.4
+(Fig. 5.25). Each targetable metric has a sense: an error, a count of violations or a
+solve time must stay at or below its threshold; a separation, a clearance or a number of
+completed tasks must reach it. A per-robot metric is graded on the worst robot. A metric
+that is ``null`` in the run (not measured) misses its target.
+
+The grading reads only the metrics computed from the simulator's truth in the log; a
+controller never grades itself.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, Mapping
+
+from .config import require
+
+__all__ = ["TARGETS", "Target", "TargetResult", "parse_targets", "grade"]
+
+AT_MOST, AT_LEAST = "<=", ">="
+
+TARGETS: dict[str, tuple[str, str]] = {
+    # per robot (worst robot counts)
+    "path_error_max_m": ("robots", AT_MOST),
+    "path_error_rms_m": ("robots", AT_MOST),
+    "heading_error_max_rad": ("robots", AT_MOST),
+    "speed_error_rms_mps": ("robots", AT_MOST),
+    "solve_ms_p50": ("robots", AT_MOST),
+    "solve_ms_p99": ("robots", AT_MOST),
+    "limit_violations": ("robots", AT_MOST),
+    "missed_ticks": ("robots", AT_MOST),
+    "wheel_speed_max_mps": ("robots", AT_MOST),
+    "solver_failures": ("robots", AT_MOST),
+    # fleet
+    "coordination_error_max_m": ("fleet", AT_MOST),
+    "coordination_error_rms_m": ("fleet", AT_MOST),
+    "min_separation_m": ("fleet", AT_LEAST),
+    "collisions": ("fleet", AT_MOST),
+    "messages_dropped_by_faults": ("fleet", AT_MOST),
+    "tasks_completed": ("fleet", AT_LEAST),
+    "conflicts_resolved": ("fleet", AT_LEAST),
+    "min_obstacle_clearance_m": ("fleet", AT_LEAST),
+    "formation_error_max_m": ("fleet", AT_MOST),
+}
+"""Targetable metric keys of metrics.json: key -> (scope, sense)."""
+
+
+@dataclass(frozen=True)
+class Target:
+    key: str
+    """A key of :data:`TARGETS`."""
+    threshold: float
+
+    @property
+    def scope(self) -> str:
+        return TARGETS[self.key][0]
+
+    @property
+    def sense(self) -> str:
+        return TARGETS[self.key][1]
+
+
+@dataclass(frozen=True)
+class TargetResult:
+    target: Target
+    value: float | None
+    """The run's figure (worst robot for per-robot metrics), None if not measured."""
+    worst: str | None
+    """The robot that sets a per-robot figure, else None."""
+    passed: bool
+
+
+def parse_targets(table: Any) -> tuple[Target, ...]:
+    """Validate a ``[targets]`` table: known metric keys, finite numeric thresholds."""
+    if table is None:
+        return ()
+    require(isinstance(table, Mapping), "targets", table, "expected a table of metric key = threshold")
+    out = []
+    for key, value in table.items():
+        require(key in TARGETS, f"targets.{key}", value, f"allowed metric keys: {', '.join(TARGETS)}")
+        ok = isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+        require(ok, f"targets.{key}", value, "expected a finite number")
+        out.append(Target(key, float(value)))
+    return tuple(out)
+
+
+def _worst(metrics: Mapping[str, Any], key: str, sense: str) -> tuple[float | None, str | None]:
+    vals = [(v[key], name) for name, v in (metrics.get("robots") or {}).items() if v.get(key) is not None]
+    if not vals:
+        return None, None
+    value, name = (max if sense == AT_MOST else min)(vals, key=lambda p: p[0])
+    return float(value), name
+
+
+def grade(targets: tuple[Target, ...], metrics: Mapping[str, Any]) -> list[TargetResult]:
+    """Each target against a metrics.json dict; an unmeasured (null) metric fails."""
+    out = []
+    for t in targets:
+        if t.scope == "robots":
+            value, who = _worst(metrics, t.key, t.sense)
+        else:
+            v = (metrics.get("fleet") or {}).get(t.key)
+            value, who = (None if v is None else float(v)), None
+        passed = value is not None and (value <= t.threshold if t.sense == AT_MOST else value >= t.threshold)
+        out.append(TargetResult(t, value, who, passed))
+    return out

@@ -397,6 +397,9 @@ def spline(waypoints, closed: bool = False) -> Path:
     return Path(_Curve(r, 0.0, t1, closed, "spline"))
 
 
+_SIZE_KEYS = frozenset({"ax", "ay", "a", "b", "radius", "wavelength", "length"})
+"""Curve keys that are sizes and must be positive (``amplitude`` may be negative: a mirrored sinusoid)."""
+
 PATH_TYPES: dict[str, Callable[..., Path]] = {
     "eight": eight_curve,
     "lemniscate": lemniscate,
@@ -431,6 +434,10 @@ def make_path(spec: dict) -> Path:
     missing = [p.name for p in params.values() if p.default is inspect.Parameter.empty and p.name not in kwargs]
     if missing:
         raise ValueError(f"path of type {kind!r} needs keys {missing}")
+    for k in _SIZE_KEYS.intersection(kwargs):
+        v = kwargs[k]
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not v > 0:
+            raise ValueError(f"{k} = {v!r} is not allowed; a curve size must be a number > 0")
     try:
         return fn(**kwargs)
     except (TypeError, ValueError) as exc:

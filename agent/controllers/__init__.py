@@ -1,16 +1,33 @@
-"""Controller registry: scenario ``controller.type`` -> builder ``(RobotContext) -> Controller``.
+"""Controller registry: scenario ``controller.type`` -> :class:`~copath.control.ControllerFactory`.
 
-Builders are imported lazily so a robot process loads only its own controller (and
-CasADi only when an MPC controller is used).
+``controller.type`` is resolved in this order:
+
+1. a built-in name (:data:`CONTROLLERS`), imported lazily so a robot process loads only its
+   own controller (and CasADi only when an MPC controller is used);
+2. a name that an installed package registers in the entry-point group
+   ``copath.controllers`` (``[project.entry-points."copath.controllers"]
+   my_law = "my_pkg.law:build"`` in its ``pyproject.toml``);
+3. an import path ``package.module:builder``. The module is looked up on ``sys.path``,
+   which the orchestrator extends with the scenario file's directory and the directory
+   ``copath run`` was started from, for its own process and every child it spawns.
+
+See ``docs/controllers.md`` for the contract.
 """
 
 from __future__ import annotations
 
 import importlib
+import importlib.metadata
+import sys
+from typing import Iterable
 
-from copath.control import Controller, RobotContext
+from copath.config import ConfigError
+from copath.control import Controller, ControllerFactory, RobotContext, as_factory
 
-__all__ = ["CONTROLLERS", "build_controller"]
+__all__ = ["CONTROLLERS", "ENTRY_POINT_GROUP", "build_controller", "resolve_controller", "registered_names",
+           "extend_import_path"]
+
+ENTRY_POINT_GROUP = "copath.controllers"
 
 CONTROLLERS: dict[str, str] = {
     # Sec. 5.5: Lyapunov path following + second-order consensus (unicycles)
@@ -36,9 +53,55 @@ CONTROLLERS: dict[str, str] = {
 }
 
 
+def _entry_points() -> dict[str, importlib.metadata.EntryPoint]:
+    return {ep.name: ep for ep in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP)}
+
+
+def registered_names() -> list[str]:
+    """Built-in names and the names installed packages register, sorted."""
+    return sorted(set(CONTROLLERS) | set(_entry_points()))
+
+
+def extend_import_path(dirs: Iterable[str]) -> None:
+    """Put ``dirs`` at the front of ``sys.path`` (once each) for import-path controllers."""
+    for d in reversed([str(d) for d in dirs if d]):
+        if d not in sys.path:
+            sys.path.insert(0, d)
+
+
+def _import(target: str, kind: str) -> object:
+    module, _, attr = target.partition(":")
+    try:
+        mod = importlib.import_module(module)
+    except ImportError as exc:
+        raise ConfigError(f"controller.type = {kind!r} is not allowed; cannot import module {module!r} "
+                          f"({exc}); an import path must be 'package.module:builder' importable from the "
+                          "scenario's directory, the current directory or an installed package") from None
+    try:
+        return getattr(mod, attr)
+    except AttributeError:
+        raise ConfigError(f"controller.type = {kind!r} is not allowed; module {module!r} has no attribute "
+                          f"{attr!r}") from None
+
+
+def resolve_controller(kind: str) -> ControllerFactory:
+    """The factory that ``controller.type = kind`` names (raises ConfigError if none)."""
+    if kind in CONTROLLERS:
+        return as_factory(_import(CONTROLLERS[kind], kind), kind)
+    eps = _entry_points()
+    if kind in eps:
+        try:
+            obj = eps[kind].load()
+        except Exception as exc:  # a broken plug-in must not hide behind a traceback
+            raise ConfigError(f"controller.type = {kind!r} is not allowed; its entry point "
+                              f"{eps[kind].value!r} failed to load: {exc}") from None
+        return as_factory(obj, kind)
+    if ":" in kind:
+        return as_factory(_import(kind, kind), kind)
+    raise ConfigError(f"controller.type = {kind!r} is not allowed; registered: {', '.join(registered_names())}, "
+                      "or an import path 'package.module:builder'")
+
+
 def build_controller(kind: str, ctx: RobotContext) -> Controller:
-    """Build the controller registered as ``kind`` for robot ``ctx``."""
-    if kind not in CONTROLLERS:
-        raise ValueError(f"controller type = {kind!r} is not allowed; choose one of {sorted(CONTROLLERS)}")
-    module, func = CONTROLLERS[kind].split(":")
-    return getattr(importlib.import_module(module), func)(ctx)
+    """Build the controller that ``kind`` names for robot ``ctx``."""
+    return resolve_controller(kind)(ctx)

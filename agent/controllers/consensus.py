@@ -23,7 +23,7 @@ import numpy as np
 from copath.config import from_table, require
 from copath.paths import Path, wrap_to_pi
 
-from copath.control import Observation, Outgoing, PeerMessage, RobotContext, StepResult
+from copath.control import controller, Observation, Outgoing, PeerMessage, RobotContext, StepResult
 
 __all__ = [
     "ConsensusGains",
@@ -248,6 +248,7 @@ class ConsensusController:
         return StepResult(np.array([float(v), float(omega)]), [msg], telemetry)
 
 
-def build(ctx: RobotContext) -> ConsensusController:
-    cfg = from_table(ConsensusConfig, ctx.params, f"robots.{ctx.name}.controller")
+@controller(config=ConsensusConfig, needs_path=True)
+def build(ctx: RobotContext, cfg: ConsensusConfig) -> ConsensusController:
+    """Builder of ``consensus`` (Sec. 5.5)."""
     return ConsensusController(ctx, cfg)

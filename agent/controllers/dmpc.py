@@ -49,7 +49,7 @@ from copath.morphing import Morphing, morphing
 from copath.mpc import OCP, MPCSolver, PathTable, SolverFields, weighted
 from copath.paths import Path, wrap_to_pi
 
-from copath.control import Observation, Outgoing, PeerMessage, RobotContext, StepResult
+from copath.control import controller, Observation, Outgoing, PeerMessage, RobotContext, StepResult
 from .consensus import project_onto_path
 
 __all__ = [
@@ -478,6 +478,7 @@ class DMPCController:
         return StepResult(np.asarray(cmd, dtype=float), [msg], telemetry)
 
 
-def build(ctx: RobotContext) -> DMPCController:
-    cfg = from_table(DMPCConfig, ctx.params, f"robots.{ctx.name}.controller")
+@controller(config=DMPCConfig, needs_path=True, models=("omni",))
+def build(ctx: RobotContext, cfg: DMPCConfig) -> DMPCController:
+    """Builder of ``dmpc`` (Sec. 5.4, Algorithm 5.1)."""
     return DMPCController(ctx, cfg)

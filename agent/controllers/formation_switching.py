@@ -32,7 +32,7 @@ import numpy as np
 from copath.config import from_table, require
 from copath.offsets import Quintic, offset_state
 
-from copath.control import Observation, Outgoing, PeerMessage, RobotContext, StepResult
+from copath.control import controller, Observation, Outgoing, PeerMessage, RobotContext, StepResult
 from .consensus import (
     ConsensusConfig,
     ConsensusGains,
@@ -227,7 +227,7 @@ class FormationSwitchingController:
         return StepResult(np.asarray(cmd, dtype=float), [msg], telemetry)
 
 
-def build(ctx: RobotContext) -> FormationSwitchingController:
+@controller(config=FormationSwitchingConfig, needs_path=True, models=("unicycle",))
+def build(ctx: RobotContext, cfg: FormationSwitchingConfig) -> FormationSwitchingController:
     """Registry builder ``formation_switching`` (E6.6)."""
-    cfg = from_table(FormationSwitchingConfig, ctx.params, f"robots.{ctx.name}.controller")
     return FormationSwitchingController(ctx, cfg)

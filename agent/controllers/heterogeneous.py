@@ -37,7 +37,7 @@ from copath.config import ConfigError, from_table, require
 from copath.models import integrate_body_velocity
 from copath.paths import wrap_to_pi
 
-from copath.control import Observation, Outgoing, PeerMessage, RobotContext, StepResult
+from copath.control import controller, Observation, Outgoing, PeerMessage, RobotContext, StepResult
 from .consensus import tracking_errors, tracking_law
 from .leader_following import PathLeader, TabulatedPath
 from .omni_nmpc import OmniPFConfig
@@ -316,14 +316,13 @@ class HeteroFollower:
         return StepResult(command=cmd, messages=[report], telemetry=tel)
 
 
-def build_leader(ctx: RobotContext) -> HeteroLeader:
+@controller(config=HeteroLeaderConfig, needs_path=True, models=("omni",))
+def build_leader(ctx: RobotContext, cfg: HeteroLeaderConfig) -> HeteroLeader:
     """Builder of ``hetero_leader`` (Sec. 5.5.5)."""
-    return HeteroLeader(ctx, from_table(HeteroLeaderConfig, ctx.params, f"robots.{ctx.name}.controller"))
+    return HeteroLeader(ctx, cfg)
 
 
-def build_follower(ctx: RobotContext) -> HeteroFollower:
+@controller(config=HeteroFollowerConfig, models=("unicycle",))
+def build_follower(ctx: RobotContext, cfg: HeteroFollowerConfig) -> HeteroFollower:
     """Builder of ``hetero_follower`` (Sec. 5.5.5)."""
-    if ctx.model.kind != "unicycle":
-        raise ConfigError(f"robots.{ctx.name}.model = {ctx.model.kind!r} is not allowed; hetero_follower "
-                          "drives a unicycle")
-    return HeteroFollower(ctx, from_table(HeteroFollowerConfig, ctx.params, f"robots.{ctx.name}.controller"))
+    return HeteroFollower(ctx, cfg)

@@ -32,7 +32,7 @@ from copath.mpc import PathTable
 from copath.offsets import Quintic, offset_state
 from copath.paths import Path, wrap_to_pi
 
-from copath.control import Observation, Outgoing, PeerMessage, RobotContext, StepResult
+from copath.control import controller, Observation, Outgoing, PeerMessage, RobotContext, StepResult
 from .omni_nmpc import OmniPathFollowingNMPC, OmniPFConfig, OmniTrackingNMPC, OmniNMPCFields, check_gain_conditions
 
 __all__ = [
@@ -541,11 +541,13 @@ class FollowerController:
         return StepResult(command=sol.body, messages=messages, telemetry=tel)
 
 
-def build_leader(ctx: RobotContext) -> LeaderController:
+@controller(config=LeaderConfig, needs_path=True, models=("omni",))
+def build_leader(ctx: RobotContext, cfg: LeaderConfig) -> LeaderController:
     """Builder of ``leader_nmpc`` (Sec. 5.3)."""
-    return LeaderController(ctx, from_table(LeaderConfig, ctx.params, f"robots.{ctx.name}.controller"))
+    return LeaderController(ctx, cfg)
 
 
-def build_follower(ctx: RobotContext) -> FollowerController:
+@controller(config=FollowerConfig, needs_path=True, models=("omni",))
+def build_follower(ctx: RobotContext, cfg: FollowerConfig) -> FollowerController:
     """Builder of ``follower_nmpc`` (Sec. 5.3)."""
-    return FollowerController(ctx, from_table(FollowerConfig, ctx.params, f"robots.{ctx.name}.controller"))
+    return FollowerController(ctx, cfg)

@@ -32,7 +32,7 @@ from copath.models import OmniModel, rotation_speed_limit
 from copath.mpc import PathTable, jit_available
 from copath.paths import Path, wrap_to_pi
 
-from copath.control import Observation, PeerMessage, RobotContext, StepResult
+from copath.control import controller, Observation, PeerMessage, RobotContext, StepResult
 
 __all__ = [
     "ltv_errors",
@@ -421,7 +421,7 @@ class LTVController:
         return StepResult(command=cmd, telemetry=tel)
 
 
-def build(ctx: RobotContext) -> LTVController:
+@controller(config=LTVConfig, needs_path=True, models=("omni",))
+def build(ctx: RobotContext, cfg: LTVConfig) -> LTVController:
     """Builder of ``ltv_mpc`` (Sec. 4.3, E4.3)."""
-    cfg = from_table(LTVConfig, ctx.params, f"robots.{ctx.name}.controller")
     return LTVController(ctx, cfg)

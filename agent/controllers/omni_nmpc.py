@@ -39,7 +39,7 @@ from copath.models import OmniModel
 from copath.mpc import OCP, MPCSolver, PathTable, SolveResult, SolverConfig, SolverFields, weighted
 from copath.paths import Path, wrap_to_pi
 
-from copath.control import Observation, PeerMessage, RobotContext, StepResult
+from copath.control import controller, Observation, PeerMessage, RobotContext, StepResult
 
 __all__ = [
     "OmniNMPCFields",
@@ -696,13 +696,13 @@ class OmniTrackingController:
         return StepResult(command=sol.body, telemetry=tel)
 
 
-def build_path_following(ctx: RobotContext) -> OmniPathFollowingController:
+@controller(config=OmniPFConfig, needs_path=True, models=("omni",))
+def build_path_following(ctx: RobotContext, cfg: OmniPFConfig) -> OmniPathFollowingController:
     """Builder of ``omni_nmpc_pf`` (Sec. 4.2, E4.2)."""
-    cfg = from_table(OmniPFConfig, ctx.params, f"robots.{ctx.name}.controller")
     return OmniPathFollowingController(ctx, cfg)
 
 
-def build_trajectory_tracking(ctx: RobotContext) -> OmniTrackingController:
+@controller(config=OmniTTConfig, needs_path=True, models=("omni",))
+def build_trajectory_tracking(ctx: RobotContext, cfg: OmniTTConfig) -> OmniTrackingController:
     """Builder of ``omni_nmpc_tt`` (Sec. 4.2, E4.1)."""
-    cfg = from_table(OmniTTConfig, ctx.params, f"robots.{ctx.name}.controller")
     return OmniTrackingController(ctx, cfg)

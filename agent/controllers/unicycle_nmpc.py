@@ -34,7 +34,7 @@ from copath.models import UnicycleModel
 from copath.mpc import OCP, MPCSolver, PathTable, SolveResult, SolverConfig, SolverFields, weighted
 from copath.paths import Path, wrap_to_pi
 
-from copath.control import Observation, PeerMessage, RobotContext, StepResult
+from copath.control import controller, Observation, PeerMessage, RobotContext, StepResult
 
 __all__ = [
     "uni_errors",
@@ -533,7 +533,7 @@ class UnicycleNMPCController:
         return StepResult(command=np.array([v_cmd, omega]), telemetry=tel)
 
 
-def build(ctx: RobotContext) -> UnicycleNMPCController:
+@controller(config=UnicycleNMPCConfig, needs_path=True, models=("unicycle",))
+def build(ctx: RobotContext, cfg: UnicycleNMPCConfig) -> UnicycleNMPCController:
     """Builder of ``unicycle_nmpc`` (Sec. 4.4, E4.4-E4.7)."""
-    cfg = from_table(UnicycleNMPCConfig, ctx.params, f"robots.{ctx.name}.controller")
     return UnicycleNMPCController(ctx, cfg)

@@ -9,5 +9,7 @@ See ``docs/controllers.md`` for the contract and how to test a controller.
 """
 
 from .contract import Controller, Observation, Outgoing, PeerMessage, RobotContext, StepResult
+from .factory import ControllerFactory, as_factory, controller
 
-__all__ = ["Controller", "Observation", "Outgoing", "PeerMessage", "RobotContext", "StepResult"]
+__all__ = ["Controller", "Observation", "Outgoing", "PeerMessage", "RobotContext", "StepResult",
+           "ControllerFactory", "controller", "as_factory"]

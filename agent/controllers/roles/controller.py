@@ -37,7 +37,7 @@ import numpy as np
 from copath.config import from_table
 from copath.models import UnicycleModel
 
-from copath.control import Observation, Outgoing, PeerMessage, RobotContext, StepResult
+from copath.control import controller, Observation, Outgoing, PeerMessage, RobotContext, StepResult
 from .assignment import Claim, RoleBook, Ruling, local_hungarian, nearest_position
 from .config import RolesConfig
 from .consensus import AverageConsensus, NeighbourContribution, PIConsensus
@@ -492,6 +492,7 @@ class RolesController:
         return tel
 
 
-def build(ctx: RobotContext) -> RolesController:
+@controller(config=RolesConfig, models=("unicycle",))
+def build(ctx: RobotContext, cfg: RolesConfig) -> RolesController:
     """Registry builder ``roles`` (Chapter 6)."""
     return RolesController(ctx)

@@ -34,6 +34,7 @@ from copath.wire.session import SessionConfig, ZenohLink, free_port, loopback_en
 
 from .mcaplog import Recorder, read_log, software_version
 from .metrics import compute_metrics, trace_from_records
+from .progress import Progress
 
 logger = logging.getLogger(__name__)
 
@@ -121,38 +122,6 @@ def _describe_exit(rc: int) -> str:
     return f"exited with code {rc}"
 
 
-class _Progress:
-    def __init__(self, duration: float, enabled: bool) -> None:
-        self.duration = duration
-        self.enabled = enabled
-        self.tty = sys.stderr.isatty()
-        self.t0 = time.monotonic()
-        self.last = -1.0
-        self.last_decile = -1
-
-    def update(self, sim_t: float) -> None:
-        if not self.enabled:
-            return
-        frac = min(1.0, max(0.0, sim_t / self.duration))
-        wall = time.monotonic() - self.t0
-        if self.tty:
-            if wall - self.last < 0.2 and frac < 1.0:
-                return
-            self.last = wall
-            bar = "#" * int(30 * frac) + "-" * (30 - int(30 * frac))
-            sys.stderr.write(f"\r  [{bar}] {sim_t:7.1f}/{self.duration:.1f} s sim  {wall:6.1f} s wall")
-            sys.stderr.flush()
-        else:
-            decile = int(frac * 10)
-            if decile > self.last_decile:
-                self.last_decile = decile
-                sys.stderr.write(f"  {int(frac * 100):3d}%  {sim_t:.1f}/{self.duration:.1f} s sim  {wall:.1f} s wall\n")
-
-    def done(self) -> None:
-        if self.enabled and self.tty:
-            sys.stderr.write("\n")
-
-
 def run_fleet(scenario: Scenario, opts: RunOptions) -> RunOutcome:
     """Run ``scenario`` as separate processes over Zenoh; write run.mcap and metrics.json."""
     out = pathlib.Path(opts.out_dir)
@@ -180,7 +149,8 @@ def run_fleet(scenario: Scenario, opts: RunOptions) -> RunOutcome:
         common += ["--connect", e]
     children: list[_Child] = []
     ok, reason = True, "completed"
-    progress = _Progress(scenario.run.duration_s, opts.progress)
+    progress = Progress(scenario.run.duration_s, enabled=opts.progress,
+                        starting=f"starting {len(scenario.robots) + 1} processes (solvers compile)").start()
     wall_limit = opts.wall_timeout_s or (120.0 + 20.0 * scenario.run.duration_s)
     try:
         children.append(_spawn("sim", [sys.executable, "-m", "sim", *common, "--start-timeout",
@@ -189,7 +159,7 @@ def run_fleet(scenario: Scenario, opts: RunOptions) -> RunOutcome:
             children.append(_spawn(name, [sys.executable, "-m", "agent", "--robot", name, *common],
                                    out / "logs" / f"{name}.log", out / "logs"))
         while True:
-            progress.update(recorder.sim_t)
+            progress.update(recorder.sim_t, recorder.count)
             sim = children[0]
             rc_sim = sim.proc.poll()
             failed = [c for c in children[1:] if c.proc.poll() is not None and (c.proc.returncode != 0 or rc_sim is None and recorder.end is None)]

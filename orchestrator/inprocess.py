@@ -18,7 +18,7 @@ import fnmatch
 import time
 import uuid
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Callable
 
 from agent.runtime import RobotRuntime
 from copath.scenario import Scenario
@@ -43,8 +43,12 @@ def _matches(key: str, patterns: list[str]) -> bool:
     return any(fnmatch.fnmatchcase(key, p.replace("**", "*")) for p in patterns)
 
 
-def run_scenario(scenario: Scenario, duration_s: float | None = None, run_id: str | None = None) -> RunResult:
-    """Run ``scenario`` in lockstep inside this process and return metrics and trace."""
+def run_scenario(scenario: Scenario, duration_s: float | None = None, run_id: str | None = None,
+                 on_tick: Callable[[float, int], None] | None = None) -> RunResult:
+    """Run ``scenario`` in lockstep inside this process and return metrics and trace.
+
+    ``on_tick(t, n)`` is called after each tick with the sim time reached [s] and the
+    number of messages published so far (progress display)."""
     wall0 = time.perf_counter()
     run_id = run_id or f"inproc-{uuid.uuid4().hex[:8]}"
     keys = Keys(run_id)
@@ -84,6 +88,8 @@ def run_scenario(scenario: Scenario, duration_s: float | None = None, run_id: st
         world.saturate_all()
         publish(t, keys.truth, world.truth(k))
         world.advance(dt)
+        if on_tick is not None:
+            on_tick(t + dt, len(records))
     t_end = n_ticks * dt
     publish(t_end, keys.end, End(n_ticks, t_end, "duration reached", True))
     published = len(records)

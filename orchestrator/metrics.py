@@ -28,6 +28,8 @@ from copath.scenario import Scenario
 from copath.wire.keys import Keys
 from copath.wire.messages import Command, End, Event, Stats, Telemetry, Truth
 
+from .metrics_truth import truth_metrics
+
 __all__ = ["RobotTrace", "Trace", "trace_from_records", "compute_metrics", "METRIC_KEYS"]
 
 ROBOT_KEYS = (
@@ -59,6 +61,12 @@ FLEET_KEYS = (
     "conflicts_resolved",
     "min_obstacle_clearance_m",
     "formation_error_max_m",
+    "formation_error_transition_max_m",
+    "coordination_error_max_reported_m",
+    "coordination_error_rms_reported_m",
+    "formation_error_max_reported_m",
+    "tasks_completed_reported",
+    "task_times_reported_s",
 )
 METRIC_KEYS = {"robots": ROBOT_KEYS, "fleet": FLEET_KEYS}
 
@@ -192,7 +200,7 @@ def _robot_metrics(rt: RobotTrace, settle: float, model_kind: str, missed: int) 
     return m
 
 
-def _coordination(trace: Trace, scenario: Scenario, settle: float):
+def _coordination_reported(trace: Trace, scenario: Scenario, settle: float):
     xs = {}
     period = 0.0
     for n, rt in trace.robots.items():
@@ -264,7 +272,9 @@ def compute_metrics(
             continue
         robots[r.name] = _robot_metrics(rt, settle, r.model.kind, missed.get(r.name, 0))
     fleet: dict[str, Any] = dict.fromkeys(FLEET_KEYS)
-    fleet["coordination_error_max_m"], fleet["coordination_error_rms_m"] = _coordination(trace, scenario, settle)
+    fleet.update(truth_metrics(trace, scenario))
+    fleet["coordination_error_max_reported_m"], fleet["coordination_error_rms_reported_m"] = \
+        _coordination_reported(trace, scenario, settle)
     fleet["min_separation_m"], collisions = _separation(trace, scenario)
     clearances = [rt.clearance for rt in trace.robots.values() if rt.clearance is not None and len(rt.clearance)]
     if clearances:
@@ -281,7 +291,7 @@ def compute_metrics(
     fe = [d["formation_error"] for rt in trace.robots.values() for t, d in zip(rt.telemetry_t, rt.telemetry)
           if d.get("formation_error") is not None and t >= settle - 1e-9 and not d.get("in_transition", False)]
     if fe:
-        fleet["formation_error_max_m"] = _f(max(fe))
+        fleet["formation_error_max_reported_m"] = _f(max(fe))
     if any(r.controller == "roles" for r in scenario.robots):
         from .metrics_roles import roles_metrics  # noqa: PLC0415
 

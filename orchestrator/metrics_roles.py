@@ -5,10 +5,18 @@
 simulator's true poses, and returns the fleet keys of metrics.json:
 
 - ``tasks_total``: formations in the queue;
-- ``tasks_completed``: formations k for which, at some tick, every robot was working on
-  k and had finished it (arrived at its target, or settled without a role);
-- ``task_times_s``: for each completed formation, the time from the first robot
+- ``tasks_completed``: formations k completed by the truth: at some tick between the
+  first agreement on k's targets and the first robot moving on to k+1, the true
+  positions occupy the targets, one robot per target (every target when there are at
+  least as many robots as targets, Sec. 6.2.1; every robot on its own target otherwise),
+  each within the tolerance ``[metrics] task_tolerance_m`` (default: the controllers'
+  ``arrive_tol``). The targets are the template after the translation (and rotation) the
+  team agreed on (Algorithm 6.1, announced as ``formation_targets``); announced targets
+  that are not a rigid motion of the template do not count;
+- ``task_times_s``: for each truth-completed formation, the time from the first robot
   starting it (t = 0 for the first) to that tick;
+- ``tasks_completed_reported`` and ``task_times_reported_s``: the same from what the
+  controllers report (every robot working on k with ``task_done``);
 - ``assignment_cost``: sum over formations of (6.5), sum_i ||x_i - g_p(i)||^2, for the
   roles the robots finally held, with x_i the true positions at the instant the first
   robot agreed on the formation's targets;
@@ -43,6 +51,34 @@ def _latest(times: np.ndarray, grid: np.ndarray) -> np.ndarray:
     return np.searchsorted(times, grid + 1e-9, side="right") - 1
 
 
+def _rigid_residual(template: np.ndarray, targets: np.ndarray) -> float:
+    """Largest distance between ``targets`` and the best rigid motion (rotation and
+    translation, Kabsch) of ``template`` onto them, point by point [m]."""
+    if template.shape != targets.shape:
+        return np.inf
+    a, b = template - template.mean(axis=0), targets - targets.mean(axis=0)
+    u, _, vt = np.linalg.svd(a.T @ b)
+    d = np.sign(np.linalg.det(u @ vt)) or 1.0
+    R = u @ np.diag([1.0, d]) @ vt
+    return float(np.max(np.hypot(*(a @ R - b).T)))
+
+
+def _occupied(P: np.ndarray, G: np.ndarray, tol: float) -> np.ndarray:
+    """Per tick: are the targets G occupied by the positions P (T, n, 2), one robot per
+    target, within tol? Every target when n >= len(G), every robot otherwise."""
+    D = np.linalg.norm(P[:, :, None, :] - G[None, None, :, :], axis=-1)  # (T, n, m)
+    near = D <= tol
+    need_targets = P.shape[1] >= len(G)
+    cand = near.any(axis=1).all(axis=1) if need_targets else near.any(axis=2).all(axis=1)
+    ok = np.zeros(len(P), dtype=bool)
+    for k in np.nonzero(cand)[0]:  # distinct robots per target (a matching), checked exactly
+        rows, cols = linear_sum_assignment(D[k])
+        ok[k] = bool(np.all(D[k][rows, cols] <= tol))
+        if ok[k]:
+            break  # the first such tick is all the caller needs
+    return ok
+
+
 def roles_metrics(trace, scenario) -> dict[str, Any]:
     """Task and assignment figures of a Ch. 6 run.
 
@@ -52,7 +88,7 @@ def roles_metrics(trace, scenario) -> dict[str, Any]:
         ``trace.robots[name]`` with ``t`` (n,), ``pose`` (n, 3), ``telemetry_t`` (m,) and
         ``telemetry`` (list of m dicts).
     scenario : copath.scenario.Scenario
-        The scenario (its roles robots' ``formations`` give the task count).
+        The scenario (its roles robots' ``formations`` give the templates and the task count).
 
     Returns
     -------
@@ -65,6 +101,8 @@ def roles_metrics(trace, scenario) -> dict[str, Any]:
         "tasks_total": len(forms),
         "tasks_completed": 0,
         "task_times_s": [],
+        "tasks_completed_reported": 0,
+        "task_times_reported_s": [],
         "assignment_cost": None,
         "assignment_cost_optimal": None,
         "conflicts_resolved": 0,
@@ -75,6 +113,7 @@ def roles_metrics(trace, scenario) -> dict[str, Any]:
     if not names or not forms:
         return out
     robots = {n: trace.robots[n] for n in names}
+    tol = _tolerance(scenario, names)
     grid = np.unique(np.concatenate([np.asarray(rt.telemetry_t, dtype=float) for rt in robots.values()]))
     if len(grid) == 0:
         return out
@@ -97,8 +136,12 @@ def roles_metrics(trace, scenario) -> dict[str, Any]:
         conflicts += int(vals[-1]) if vals else 0
     out["conflicts_resolved"] = conflicts
 
-    times, cost, cost_opt = [], [], []
-    completed = 0
+    # true positions of the roles robots on the simulator's ticks
+    T = min(len(rt.t) for rt in robots.values())
+    t_truth = np.asarray(next(iter(robots.values())).t[:T], dtype=float)
+    P = np.stack([np.asarray(rt.pose, dtype=float)[:T, :2] for rt in robots.values()], axis=1)  # (T, n, 2)
+
+    times, times_rep, cost, cost_opt = [], [], [], []
     for k in range(len(forms)):
         on_k = task == k
         started = np.nonzero(on_k.any(axis=0))[0]
@@ -106,10 +149,9 @@ def roles_metrics(trace, scenario) -> dict[str, Any]:
             continue
         t_start = 0.0 if k == 0 else float(grid[started[0]])
         full = np.nonzero(np.all(on_k & done, axis=0))[0]
-        t_end = float(grid[full[0]]) if len(full) else None
-        if t_end is not None:
-            completed += 1
-            times.append(round(t_end - t_start, 6))
+        t_rep = float(grid[full[0]]) if len(full) else None
+        if t_rep is not None:
+            times_rep.append(round(t_rep - t_start, 6))
         # targets and instant: the first robot to agree on formation k
         first = None
         for rt in robots.values():
@@ -121,7 +163,19 @@ def roles_metrics(trace, scenario) -> dict[str, Any]:
         if first is None:
             continue
         t_a, G = first
-        horizon = t_end if t_end is not None else np.inf
+        # truth: the targets occupied between the agreement and the first robot on task k+1
+        later = np.nonzero((task > k).any(axis=0))[0]
+        t_next = float(grid[later[0]]) if len(later) else np.inf
+        t_end = None
+        template = np.asarray(forms[k], dtype=float).reshape(-1, 2)
+        if _rigid_residual(template, G) <= 1e-6 + 1e-6 * float(np.max(np.abs(template), initial=1.0)):
+            win = np.nonzero((t_truth >= t_a - 1e-9) & (t_truth <= t_next + 1e-9))[0]
+            if len(win):
+                hit = np.nonzero(_occupied(P[win], G, tol))[0]
+                if len(hit):
+                    t_end = float(t_truth[win[hit[0]]])
+                    times.append(round(t_end - t_start, 6))
+        horizon = t_end if t_end is not None else (t_rep if t_rep is not None else np.inf)
         X, held = [], []
         for rt in robots.values():
             X.append(_pose_at(rt, t_a))
@@ -143,14 +197,29 @@ def roles_metrics(trace, scenario) -> dict[str, Any]:
         out["assignment_duplicates"] += int(np.sum(counts > 1))
         cost.append(round(c, 6))
         cost_opt.append(round(c_opt, 6))
-    out["tasks_completed"] = completed
+    out["tasks_completed"] = len(times)
     out["task_times_s"] = times
+    out["tasks_completed_reported"] = len(times_rep)
+    out["task_times_reported_s"] = times_rep
     out["assignment_cost_per_task"] = cost
     out["assignment_cost_optimal_per_task"] = cost_opt
     if cost:
         out["assignment_cost"] = round(float(sum(cost)), 6)
         out["assignment_cost_optimal"] = round(float(sum(cost_opt)), 6)
     return out
+
+
+def _tolerance(scenario, names: list[str]) -> float:
+    """``[metrics] task_tolerance_m``, else the roles controllers' ``arrive_tol``."""
+    tol = (getattr(scenario, "metrics", None) or {}).get("task_tolerance_m")
+    if tol is not None:
+        return float(tol)
+    from agent.controllers.roles.config import RolesConfig  # noqa: PLC0415
+
+    for r in scenario.robots:
+        if r.name in names:
+            return float(r.params.get("arrive_tol", RolesConfig.arrive_tol))
+    return float(RolesConfig.arrive_tol)
 
 
 def _pose_at(rt, t: float) -> np.ndarray:

@@ -57,9 +57,13 @@ def _scenario():
 def test_roles_metrics_on_a_synthetic_trace():
     m = roles_metrics(_trace(), _scenario())
     assert m["tasks_total"] == 2
-    # task 0: both working on it and done at t = 1.5; task 1: b never finishes
+    # reported: task 0 both working on it and done at t = 1.5; task 1: b never finishes
+    assert m["tasks_completed_reported"] == 1
+    assert m["task_times_reported_s"] == [pytest.approx(1.5)]
+    # truth: the two positions of task 0 are occupied from t = 0 (a and b swapped), task 1
+    # never has both robots on distinct targets
     assert m["tasks_completed"] == 1
-    assert m["task_times_s"] == [pytest.approx(1.5)]
+    assert m["task_times_s"] == [pytest.approx(0.0)]
     # task 0 at t = 0: a at (0,0) holds position 1 (cost 1), b at (1,0) holds 0 (cost 1);
     # the optimum keeps both where they are (cost 0)
     assert m["assignment_cost_per_task"][0] == pytest.approx(2.0)
@@ -81,3 +85,27 @@ def test_roles_metrics_counts_duplicates_and_handles_no_roles_robots():
     assert m["assignment_duplicates"] == 1
     empty = roles_metrics(tr, SimpleNamespace(robots=[SimpleNamespace(name="a", controller="consensus", params={})]))
     assert empty["tasks_total"] == 0 and empty["assignment_cost"] is None
+
+
+def test_truth_tasks_ignore_a_team_that_claims_done_away_from_the_targets():
+    tr = _trace()
+    for rt in tr.robots.values():  # everyone claims task 1 done at the end, b is at (0.8, 0.8)
+        rt.telemetry[-1] = dict(rt.telemetry[-1], task=1, task_done=True)
+    m = roles_metrics(tr, _scenario())
+    assert m["tasks_completed_reported"] == 2 and m["tasks_completed"] == 1
+    # once b really stands on (1, 1) the truth counts the task, 1.5 s after it started at t = 2
+    tr.robots["b"].pose[-1, :2] = (1.0, 1.0 + 0.04)
+    m = roles_metrics(tr, _scenario())
+    assert m["tasks_completed"] == 2 and m["task_times_s"][1] == pytest.approx(1.5)
+    # 4 cm is outside a 3 cm tolerance
+    strict = _scenario()
+    strict.metrics = {"task_tolerance_m": 0.03}
+    assert roles_metrics(tr, strict)["tasks_completed"] == 1
+
+
+def test_truth_tasks_reject_announced_targets_that_are_not_the_template():
+    tr = _trace()
+    bent = [[0.0, 0.0], [0.5, 0.5]]  # not a rigid motion of G0
+    for rt in tr.robots.values():
+        rt.telemetry[0] = dict(rt.telemetry[0], formation_targets=bent)
+    assert roles_metrics(tr, _scenario())["tasks_completed"] == 0

@@ -97,6 +97,8 @@ class AgentNode:
             self.link.publish(key, env)
         self.link.publish(self.keys.cmd(name), out.command)
         self.link.publish(self.keys.telemetry(name), out.telemetry)
+        if out.estimate is not None:
+            self.link.publish(self.keys.estimate(name), out.estimate)
 
     def run(self) -> None:
         name = self.rt.name

@@ -83,6 +83,8 @@ def run_scenario(scenario: Scenario, duration_s: float | None = None, run_id: st
                     robots[r].receive(env)
             publish(t, keys.cmd(n), out.command)
             publish(t, keys.telemetry(n), out.telemetry)
+            if out.estimate is not None:
+                publish(t, keys.estimate(n), out.estimate)
             world.command(n, out.command.cmd)
             sent[n] = out.command.sent
         world.saturate_all()

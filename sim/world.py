@@ -3,7 +3,8 @@
 Each robot's commanded body velocities are saturated by its model's limits (a command
 beyond them is counted as a limit violation) and integrated exactly over the tick
 (``copath.models.integrate_body_velocity``). Observations carry the pose with optional
-Gaussian noise and, when enabled, a ring of range readings computed from the true
+Gaussian noise (or, with a ``[sensing]`` profile, the raw readings and measurements of
+the robot's sensor models, ``sim/sensing.py``) and, when enabled, a ring of range readings computed from the true
 geometry of the obstacles (``sim/geometry.py``) and of the other robots' discs.
 """
 
@@ -15,6 +16,8 @@ import numpy as np
 
 from copath.scenario import Scenario
 from copath.wire.messages import Obs, Truth
+
+from .sensing import RobotSensors
 
 __all__ = ["World"]
 
@@ -38,6 +41,11 @@ class World:
         self.t = 0.0
         self._noise_rng = np.random.default_rng(np.random.SeedSequence([scenario.run.seed, 101]))
         self.sensors = scenario.sensors
+        self.sensing: dict[str, RobotSensors] = {}  # robots with a non-ideal sensor profile
+        for i, r in enumerate(scenario.robots):
+            profile = scenario.sensing.profile_for(r.name, r.model.kind)
+            if not profile.ideal:
+                self.sensing[r.name] = RobotSensors(profile, r.model, scenario.run.seed, i, r.pose)
         self._angles = 2 * math.pi * np.arange(self.sensors.count) / self.sensors.count
         self._obstacles = []
         if scenario.obstacles or self.sensors.enabled:
@@ -59,6 +67,8 @@ class World:
             applied, violated = model.saturate(self.requested[n])
             self.applied[n] = applied
             self.violated[n] = violated
+            if n in self.sensing:
+                self.sensing[n].advance(self.t, self.poses[n], applied, dt)
             self.poses[n] = model.step(self.poses[n], applied, dt)
         self.t += dt
 
@@ -75,10 +85,14 @@ class World:
     def observe(self, name: str, k: int, sent: dict[str, dict[str, int]] | None = None) -> Obs:
         """Observation of robot ``name`` at tick k; ``sent`` (each robot's latest
         ``Command.sent``) gives the lockstep barrier of peer messages to wait for."""
-        pose = self.poses[name].copy()
-        std = np.asarray(self.scenario.noise.pose_std)
-        if np.any(std > 0):
-            pose = pose + self._noise_rng.normal(0.0, 1.0, 3) * std
+        meas = None
+        if name in self.sensing:
+            pose, meas = self.sensing[name].read(self.t)
+        else:
+            pose = self.poses[name].copy()
+            std = np.asarray(self.scenario.noise.pose_std)
+            if np.any(std > 0):
+                pose = pose + self._noise_rng.normal(0.0, 1.0, 3) * std
         ranges = None
         if self.sensors.enabled:
             polys = self.obstacle_polygons()
@@ -99,7 +113,7 @@ class World:
         expect = None
         if sent is not None:
             expect = {s: int(c.get("*", 0)) + int(c.get(name, 0)) for s, c in sent.items() if s != name}
-        return Obs(k, float(self.t), [float(v) for v in pose], ranges, expect)
+        return Obs(k, float(self.t), [float(v) for v in pose], ranges, expect, meas)
 
     def truth(self, k: int) -> Truth:
         clearance = None

@@ -63,6 +63,9 @@ class Keys:
     def telemetry(self, robot: str) -> str:
         return f"{self.prefix}/robot/{robot}/telemetry"
 
+    def estimate(self, robot: str) -> str:
+        return f"{self.prefix}/robot/{robot}/estimate"
+
     # robot -> robot
     def peer_broadcast(self, sender: str) -> str:
         return f"{self.prefix}/peer/{sender}/all"

@@ -6,7 +6,7 @@ another version, an unknown tag, a missing field or a field of the wrong type ra
 :class:`WireError`, which receivers count as a reject instead of crashing.
 
 Arrays cross the boundary as lists of Python floats (msgpack refuses numpy scalars
-other than float64; FIELD_NOTES).
+other than float64; docs/measurements.md, M7).
 """
 
 from __future__ import annotations
@@ -23,6 +23,7 @@ __all__ = [
     "WIRE_VERSION",
     "WireError",
     "Obs",
+    "Estimate",
     "Command",
     "Telemetry",
     "Truth",
@@ -66,6 +67,7 @@ _CHECKS = {
     and all(isinstance(e, list) and len(e) == 2 and all(_CHECKS["float"](c) for c in e) for e in v),
     "any": lambda v: True,
     "dict": lambda v: isinstance(v, dict),
+    "dict?": lambda v: v is None or isinstance(v, dict),
     "floats?": lambda v: v is None or _CHECKS["floats"](v),
     "float?": lambda v: v is None or _CHECKS["float"](v),
     "strs": lambda v: isinstance(v, list) and all(isinstance(e, str) for e in v),
@@ -123,14 +125,53 @@ class Obs(_Record):
 
     TYPE: ClassVar[str] = "obs"
     FIELDS: ClassVar[dict[str, str]] = {"k": "int", "t": "float", "pose": "floats", "ranges": "floats?",
-                                        "expect": "any"}
+                                        "expect": "any", "meas": "dict?"}
     k: int
     t: float
     pose: list[float]
+    """True pose (ideal sensing, plus ``[noise] pose_std``), or with a ``[sensing]`` profile
+    the raw reading: latest position fix and heading measurement delivered."""
     ranges: list[float] | None = None
     expect: dict[str, int] | None = None
     """Lockstep barrier: how many peer messages each sender had sent this robot's way
     (broadcasts plus direct ones) by the end of the previous tick."""
+    meas: dict[str, Any] | None = None
+    """Measurements delivered since the previous observation (None: ideal sensing):
+    ``odom`` [[t0, t1, u...]] measured body velocities held over [t0, t1];
+    ``fixes`` [[t_taken, x, y]]; ``headings`` [[t_taken, theta]] (sim/sensing.py)."""
+
+    _MEAS_WIDTH: ClassVar[dict[str, tuple[int, ...]]] = {"odom": (4, 5), "fixes": (3,), "headings": (2,)}
+
+    @classmethod
+    def from_dict(cls, d):
+        rec = super().from_dict(d)
+        if rec.meas is not None:
+            for key, widths in cls._MEAS_WIDTH.items():
+                rows = rec.meas.get(key)
+                if not _CHECKS["matrix"](rows) or any(len(r) not in widths for r in rows):
+                    raise WireError(f"obs.meas.{key} = {rows!r} must be rows of {widths} numbers")
+        return rec
+
+
+@dataclass(frozen=True)
+class Estimate(_Record):
+    """Robot -> recorder: its pose estimate at tick k (key robot/<name>/estimate)."""
+
+    TYPE: ClassVar[str] = "estimate"
+    FIELDS: ClassVar[dict[str, str]] = {"k": "int", "t": "float", "x": "floats", "cov": "matrix", "nis": "floats",
+                                        "nis_dof": "ints", "counts": "dict"}
+    k: int
+    t: float
+    x: list[float]
+    """x, y, theta [m, m, rad] and the heading sensor's bias [rad] (copath.estimation.PoseEKF)."""
+    cov: list[list[float]]
+    """4 x 4 covariance of x."""
+    nis: list[float] = field(default_factory=list)
+    """Normalised innovation squared of each measurement first fused (or gated) this step."""
+    nis_dof: list[int] = field(default_factory=list)
+    """Its degrees of freedom (2: position fix, 1: heading)."""
+    counts: dict[str, int] = field(default_factory=dict)
+    """Cumulative ``accepted``, ``rejected`` (chi-square gate) and ``late`` measurements."""
 
 
 @dataclass(frozen=True)
@@ -203,6 +244,7 @@ class PeerEnvelope(_Record):
         "kind": "str",
         "pos": "floats",
         "payload": "dict",
+        "cov": "floats?",
     }
     sender: str
     seq: int
@@ -213,6 +255,8 @@ class PeerEnvelope(_Record):
     pos: list[float]
     """Sender's own position estimate [x, y] (range-limited graphs, Def. 10)."""
     payload: dict[str, Any]
+    cov: list[float] | None = None
+    """Covariance [Pxx, Pxy, Pyy] of ``pos`` when the sender runs an estimator, else None."""
 
     @classmethod
     def from_dict(cls, d):
@@ -220,6 +264,8 @@ class PeerEnvelope(_Record):
         validate_payload(rec.kind, rec.payload)
         if len(rec.pos) != 2:
             raise WireError(f"peer.pos = {rec.pos!r} must be [x, y]")
+        if rec.cov is not None and len(rec.cov) != 3:
+            raise WireError(f"peer.cov = {rec.cov!r} must be [Pxx, Pxy, Pyy]")
         return rec
 
 
@@ -271,7 +317,7 @@ class Stats(_Record):
 
 
 RECORD_TYPES: dict[str, type[_Record]] = {
-    c.TYPE: c for c in (Obs, Command, Telemetry, Truth, PeerEnvelope, Start, End, Event, Stats)
+    c.TYPE: c for c in (Obs, Estimate, Command, Telemetry, Truth, PeerEnvelope, Start, End, Event, Stats)
 }
 
 

@@ -11,13 +11,22 @@ import dataclasses
 import typing
 from typing import Any, Mapping, TypeVar
 
-__all__ = ["ConfigError", "from_table", "require", "as_float_tuple"]
+__all__ = ["ConfigError", "ConfigErrors", "from_table", "require", "as_float_tuple"]
 
 T = TypeVar("T")
 
 
 class ConfigError(ValueError):
     """A scenario or CLI value is not allowed; the message names key, value and rule."""
+
+
+class ConfigErrors(ConfigError):
+    """Several problems at once (``copath validate`` prints them all); ``errors`` lists
+    one-line messages, and ``str()`` joins them with newlines."""
+
+    def __init__(self, errors: list[str]) -> None:
+        self.errors = list(errors)
+        super().__init__("\n".join(self.errors))
 
 
 def require(cond: bool, key: str, value: Any, allowed: str) -> None:

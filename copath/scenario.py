@@ -12,12 +12,15 @@ The TOML layout (every table optional unless said)::
                 partitions = [{links = [["r1", "r2"]], start_s, end_s}]
     [noise]     pose_std = [sx, sy, stheta], range_std
     [sensors]   enabled, count, max_range_m
+    [sensing]   profile, estimator, solve_time_s, robots = {r1 = "ideal"}, [sensing.profiles.NAME]
+                (position fixes, compass, odometry and the robots' EKF: copath.estimation)
     [paths.NAME] type = "lemniscate" | "eight" | ... and the curve's keys (copath.paths)
     [controller] type = "<registered controller>" and its parameters (defaults for all)
     [[robots]]  name, model ("omni" | "unicycle" | table), pose = [x, y, theta], path,
                 neighbours = [...], [robots.controller] per-robot overrides
     [[obstacles]] vertices = [[x, y], ...], velocity = [vx, vy] (optional)
     [metrics]   coordination_pairs = "all" | "edges"
+    [safety]    enabled, gamma, margin_m, lookahead_m, speed_max_mps, ... (copath.safety)
     [targets]   metric key = threshold, e.g. coordination_error_max_m = 0.1 (copath.targets)
 
 Controller parameters whose key ends in ``_file`` (a string) or ``_files`` (a list) are
@@ -32,17 +35,20 @@ from __future__ import annotations
 
 import copy
 import csv
+import itertools
 import json
 import math
 import pathlib
 import re
 import tomllib
 from dataclasses import dataclass, field
-from typing import Any, Mapping
+from typing import Any, Callable, Mapping
 
-from .config import ConfigError, as_float_tuple, from_table, require
+from .config import ConfigError, ConfigErrors, as_float_tuple, from_table, require
+from .estimation import SensingConfig, parse_sensing
 from .models import OmniModel, UnicycleModel, make_model
 from .paths import Path, make_path
+from .safety import SafetyConfig
 from .targets import Target, parse_targets
 
 __all__ = [
@@ -56,6 +62,7 @@ __all__ = [
     "parse_scenario",
     "load_scenario",
     "ConfigError",
+    "ConfigErrors",
 ]
 
 CLOCKS = ("lockstep", "realtime")
@@ -188,8 +195,12 @@ class Scenario:
     """The table the scenario was parsed from (recorded as MCAP metadata)."""
     source: str = ""
     """File name the scenario came from, if any."""
+    sensing: SensingConfig = field(default_factory=SensingConfig)
+    """Sensor profiles and the robots' estimator (``[sensing]``, copath.estimation)."""
     targets: tuple[Target, ...] = ()
     """Goals a run is graded against (``[targets]``, :func:`copath.targets.grade`)."""
+    safety: SafetyConfig = SafetyConfig()
+    """The per-robot safety filter (``[safety]``, :mod:`copath.safety`); off by default."""
 
     @property
     def robot_names(self) -> tuple[str, ...]:
@@ -218,8 +229,10 @@ class Scenario:
         return parse_scenario(raw, base_dir=None, source=self.source)
 
 
+_ROBOT_KEYS = frozenset({"name", "model", "pose", "path", "neighbours", "controller"})
 _TOP_KEYS = {"_source", "id", "experiment", "title", "run", "network", "noise", "sensors", "paths", "controller", "robots",
-             "obstacles", "metrics", "targets", "notes"}
+             "obstacles", "metrics", "targets", "safety", "notes",
+             "sensing"}
 
 
 def _load_data_file(base_dir: pathlib.Path | None, name: str, key: str) -> Any:
@@ -258,109 +271,196 @@ def _resolve_files(params: dict, base_dir: pathlib.Path | None, where: str) -> d
     return out
 
 
-def parse_scenario(raw: Mapping[str, Any], base_dir: pathlib.Path | None = None, source: str = "") -> Scenario:
-    """Validate a scenario table; raises ConfigError naming key, value and rule."""
+class _Errors:
+    """Collects every ConfigError of a scenario so that all are reported at once."""
+
+    def __init__(self) -> None:
+        self.items: list[str] = []
+
+    def take(self, fn: Callable[[], Any], default: Any = None) -> Any:
+        """``fn()``, or ``default`` after recording its ConfigError(s)."""
+        try:
+            return fn()
+        except ConfigErrors as exc:
+            self.items.extend(exc.errors)
+        except ConfigError as exc:
+            self.items.append(str(exc))
+        return default
+
+    def check(self, cond: bool, key: str, value: Any, allowed: str) -> bool:
+        if not cond:
+            self.items.append(f"{key} = {value!r} is not allowed; {allowed}")
+        return bool(cond)
+
+
+def _sub_error(prefix: str, exc: Exception) -> ConfigError:
+    """``prefix.key = value ...`` when the message starts with a key, else ``prefix: message``."""
+    msg = str(exc)
+    head = msg.split(" = ", 1)[0]
+    if " = " in msg and head.replace("_", "").replace(".", "").isalnum():
+        return ConfigError(f"{prefix}.{msg}")
+    return ConfigError(f"{prefix}: {msg}")
+
+
+def _partition(p: Any, where: str) -> Partition:
+    require(isinstance(p, dict), where, p, "expected a table {links, start_s, end_s}")
+    links = p.get("links")
+    require(isinstance(links, list) and all(isinstance(l, list) and len(l) == 2 for l in links),
+            f"{where}.links", links, "expected a list of [robot, robot] pairs")
+    start, end = float(p.get("start_s", 0.0)), float(p.get("end_s", math.inf))
+    require(end > start, f"{where}.end_s", end, "must be greater than start_s")
+    return Partition(tuple((str(a), str(b)) for a, b in links), start, end)
+
+
+def _obstacle(o: Any, where: str) -> ObstacleSpec:
+    require(isinstance(o, dict), where, o, "expected a table {vertices, velocity}")
+    for k in o:
+        require(k in ("vertices", "velocity"), f"{where}.{k}", o[k], "allowed keys: vertices, velocity")
+    verts = o.get("vertices")
+    require(isinstance(verts, list) and len(verts) >= 3, f"{where}.vertices", verts, "expected >= 3 [x, y] points")
+    vs = tuple(as_float_tuple(v, f"{where}.vertices[{j}]", 2) for j, v in enumerate(verts))
+    vel = as_float_tuple(o.get("velocity", [0.0, 0.0]), f"{where}.velocity", 2)
+    return ObstacleSpec(vs, vel)
+
+
+def _robot(r: Any, i: int, names: list, paths: Mapping[str, Path], defaults: dict, errs: _Errors) -> RobotSpec | None:
+    where = f"robots[{i}]"
+    if not errs.check(isinstance(r, dict), where, r, "expected a table {name, model, pose, path, ...}"):
+        return None
+    for k in r:
+        errs.check(k in _ROBOT_KEYS, f"{where}.{k}", r[k], f"allowed keys: {', '.join(sorted(_ROBOT_KEYS))}")
+    name = r.get("name")
+    if not errs.check(isinstance(name, str) and name.isidentifier(), f"{where}.name", name,
+                      "expected an identifier such as 'r1' (letters, digits, underscore)"):
+        return None
+    if not errs.check(names.count(name) == 1, f"{where}.name", name, "robot names must be unique"):
+        return None
+    model = errs.take(lambda: _wrap(lambda: make_model(r.get("model", "unicycle")), f"robots.{name}.model"))
+    pose = errs.take(lambda: as_float_tuple(r.get("pose", [0.0, 0.0, 0.0]), f"robots.{name}.pose", 3))
+    path = r.get("path")
+    errs.check(path is None or path in paths, f"robots.{name}.path", path,
+               f"must name a table under [paths]: {', '.join(sorted(paths)) or '(none defined)'}")
+    nbrs = r.get("neighbours", [])
+    ok_nbrs = errs.check(isinstance(nbrs, list) and all(n in names and n != name for n in nbrs),
+                         f"robots.{name}.neighbours", nbrs, "must list other robots of this scenario")
+    params = {**defaults, **dict(r.get("controller") or {})}
+    kind = params.pop("type", None)
+    errs.check(isinstance(kind, str) and _CONTROLLER_RE.fullmatch(kind) is not None, f"robots.{name}.controller.type",
+               kind, "expected a registered controller name (see `copath controllers`) or an import path "
+               "'package.module:builder'")
+    if model is None or pose is None or not ok_nbrs:
+        return None
+    return RobotSpec(name, model, pose, path, tuple(nbrs), kind, params)
+
+
+def _wrap(fn: Callable[[], Any], prefix: str) -> Any:
+    try:
+        return fn()
+    except ConfigError:
+        raise
+    except ValueError as exc:
+        raise _sub_error(prefix, exc) from None
+
+
+def _cross_field(run: RunConfig | None, robots: list[RobotSpec], errs: _Errors) -> None:
+    """Rules that involve several tables: settle within the run, start poses apart."""
+    if run is not None:
+        errs.check(run.settle_s < run.duration_s, "run.settle_s", run.settle_s,
+                   f"must be less than run.duration_s = {run.duration_s} (errors are measured after settling)")
+    for a, b in itertools.combinations(robots, 2):
+        gap = math.hypot(a.pose[0] - b.pose[0], a.pose[1] - b.pose[1])
+        need = a.model.radius + b.model.radius
+        errs.check(gap >= need, f"robots.{b.name}.pose", list(b.pose),
+                   f"starts {gap:.3f} m from robots.{a.name} (pose {list(a.pose)}); start poses must be at least "
+                   f"the sum of the two radii apart ({need:.3f} m)")
+
+
+def parse_scenario(raw: Mapping[str, Any], base_dir: pathlib.Path | None = None, source: str = "",
+                   checks: Callable[["Scenario"], list[str]] | None = None) -> Scenario:
+    """Validate a scenario table.
+
+    Raises :class:`ConfigErrors` (a ConfigError) listing *every* problem found, each as
+    ``key = value is not allowed; rule``. ``checks(scenario)`` adds the problems a caller
+    knows how to find (the orchestrator checks each robot's controller with it); it sees
+    the scenario as far as it parsed, so its problems are reported with the others.
+    """
     raw = copy.deepcopy(dict(raw))
+    errs = _Errors()
     # make the table self-contained: data files are read into it once, here
     if raw.get("controller"):
-        raw["controller"] = _resolve_files(dict(raw["controller"]), base_dir, "controller")
+        raw["controller"] = errs.take(lambda: _resolve_files(dict(raw["controller"]), base_dir, "controller"),
+                                      dict(raw["controller"]))
     for i, r in enumerate(raw.get("robots") or []):
         if isinstance(r, dict) and r.get("controller"):
-            r["controller"] = _resolve_files(dict(r["controller"]), base_dir, f"robots[{i}].controller")
+            r["controller"] = errs.take(lambda: _resolve_files(dict(r["controller"]), base_dir,
+                                                               f"robots[{i}].controller"), dict(r["controller"]))
     for k in raw:
-        require(k in _TOP_KEYS, k, raw[k], f"allowed top-level keys: {', '.join(sorted(_TOP_KEYS))}")
+        errs.check(k in _TOP_KEYS, k, raw[k], f"allowed top-level keys: {', '.join(sorted(_TOP_KEYS))}")
     sid = raw.get("id")
-    require(isinstance(sid, str) and _ID_RE.fullmatch(sid) is not None, "id", sid,
-            "expected a scenario name of letters, digits, '-', '_' and '.', e.g. 'my-test'")
+    errs.check(isinstance(sid, str) and _ID_RE.fullmatch(sid) is not None, "id", sid,
+               "expected a scenario name of letters, digits, '-', '_' and '.', e.g. 'my-test'")
     experiment = raw.get("experiment")
-    require(experiment is None or (isinstance(experiment, str) and _EXPERIMENT_RE.fullmatch(experiment) is not None),
-            "experiment", experiment,
-            "expected a dissertation experiment id in lower case, e.g. 'e5.5' (or leave the key out)")
-    run = from_table(RunConfig, raw.get("run"), "run")
+    errs.check(experiment is None or (isinstance(experiment, str) and _EXPERIMENT_RE.fullmatch(experiment) is not None),
+               "experiment", experiment,
+               "expected a dissertation experiment id in lower case, e.g. 'e5.5' (or leave the key out)")
+    run = errs.take(lambda: from_table(RunConfig, raw.get("run"), "run"))
     net_tab = dict(raw.get("network") or {})
-    parts = []
-    for i, p in enumerate(net_tab.pop("partitions", []) or []):
-        where = f"network.partitions[{i}]"
-        require(isinstance(p, dict), where, p, "expected a table {links, start_s, end_s}")
-        links = p.get("links")
-        require(isinstance(links, list) and all(isinstance(l, list) and len(l) == 2 for l in links),
-                f"{where}.links", links, "expected a list of [robot, robot] pairs")
-        start, end = float(p.get("start_s", 0.0)), float(p.get("end_s", math.inf))
-        require(end > start, f"{where}.end_s", end, "must be greater than start_s")
-        parts.append(Partition(tuple((str(a), str(b)) for a, b in links), start, end))
-    network = from_table(NetworkConfig, net_tab, "network")
+    parts = [p for p in (errs.take(lambda: _partition(p, f"network.partitions[{i}]"))
+                         for i, p in enumerate(net_tab.pop("partitions", []) or [])) if p is not None]
+    network = errs.take(lambda: from_table(NetworkConfig, net_tab, "network"), NetworkConfig())
     network = NetworkConfig(**{**network.__dict__, "partitions": tuple(parts)})
-    noise = from_table(NoiseConfig, raw.get("noise"), "noise")
-    sensors = from_table(SensorConfig, raw.get("sensors"), "sensors")
+    noise = errs.take(lambda: from_table(NoiseConfig, raw.get("noise"), "noise"), NoiseConfig())
+    sensors = errs.take(lambda: from_table(SensorConfig, raw.get("sensors"), "sensors"), SensorConfig())
 
     paths: dict[str, Path] = {}
     for name, spec in (raw.get("paths") or {}).items():
-        try:
-            paths[name] = make_path(dict(spec))
-        except ValueError as exc:
-            raise ConfigError(f"paths.{name}: {exc}") from exc
+        path = errs.take(lambda: _wrap(lambda: make_path(dict(spec) if isinstance(spec, dict) else spec),
+                                       f"paths.{name}"))
+        if path is not None:
+            paths[name] = path
 
     defaults = dict(raw.get("controller") or {})
     robots_raw = raw.get("robots") or []
-    require(isinstance(robots_raw, list) and robots_raw, "robots", robots_raw, "need at least one [[robots]] entry")
-    names = [r.get("name") for r in robots_raw]
-    robots = []
-    allowed_robot_keys = {"name", "model", "pose", "path", "neighbours", "controller"}
-    for i, r in enumerate(robots_raw):
-        where = f"robots[{i}]"
-        for k in r:
-            require(k in allowed_robot_keys, f"{where}.{k}", r[k], f"allowed keys: {', '.join(sorted(allowed_robot_keys))}")
-        name = r.get("name")
-        require(isinstance(name, str) and name.isidentifier(), f"{where}.name", name,
-                "expected an identifier such as 'r1' (letters, digits, underscore)")
-        require(names.count(name) == 1, f"{where}.name", name, "robot names must be unique")
-        try:
-            model = make_model(r.get("model", "unicycle"))
-        except ValueError as exc:
-            raise ConfigError(f"robots.{name}.model: {exc}") from exc
-        pose = as_float_tuple(r.get("pose", [0.0, 0.0, 0.0]), f"robots.{name}.pose", 3)
-        path = r.get("path")
-        require(path is None or path in paths, f"robots.{name}.path", path,
-                f"must name a table under [paths]: {', '.join(sorted(paths)) or '(none defined)'}")
-        nbrs = tuple(r.get("neighbours", []))
-        for n in nbrs:
-            require(n in names and n != name, f"robots.{name}.neighbours", list(nbrs),
-                    "must list other robots of this scenario")
-        params = {**defaults, **dict(r.get("controller") or {})}
-        kind = params.pop("type", None)
-        require(isinstance(kind, str) and _CONTROLLER_RE.fullmatch(kind) is not None, f"robots.{name}.controller.type",
-                kind, "expected a registered controller name (see `copath controllers`) or an import path "
-                "'package.module:builder'")
-        robots.append(RobotSpec(name, model, pose, path, nbrs, kind, params))
+    robots: list[RobotSpec] = []
+    if errs.check(isinstance(robots_raw, list) and robots_raw, "robots", robots_raw,
+                  "need at least one [[robots]] entry"):
+        names = [r.get("name") if isinstance(r, dict) else None for r in robots_raw]
+        robots = [s for s in (_robot(r, i, names, paths, defaults, errs) for i, r in enumerate(robots_raw))
+                  if s is not None]
     # the fixed graph must be undirected: neighbour lists are symmetrised
+    order = [r.name for r in robots]
     sym = {r.name: set(r.neighbours) for r in robots}
     for r in robots:
         for n in r.neighbours:
-            sym[n].add(r.name)
-    robots = [RobotSpec(r.name, r.model, r.pose, r.path, tuple(sorted(sym[r.name], key=names.index)),
+            sym.setdefault(n, set()).add(r.name)
+    robots = [RobotSpec(r.name, r.model, r.pose, r.path, tuple(sorted(sym[r.name] & set(order), key=order.index)),
                         r.controller, r.params) for r in robots]
+    edges = {frozenset((r.name, n)) for r in robots for n in r.neighbours}
     for i, p in enumerate(parts):
         for a, b in p.links:
-            require(a in names and b in names, f"network.partitions[{i}].links", [a, b], "must name robots of this scenario")
+            if errs.check(a in order and b in order and a != b, f"network.partitions[{i}].links", [a, b],
+                          "must name two robots of this scenario"):
+                errs.check(network.range_m > 0 or frozenset((a, b)) in edges, f"network.partitions[{i}].links",
+                           [a, b], "must be an edge of the communication graph (robots.neighbours)")
 
-    obstacles = []
-    for i, o in enumerate(raw.get("obstacles") or []):
-        where = f"obstacles[{i}]"
-        verts = o.get("vertices")
-        require(isinstance(verts, list) and len(verts) >= 3, f"{where}.vertices", verts, "expected >= 3 [x, y] points")
-        vs = tuple(as_float_tuple(v, f"{where}.vertices[{j}]", 2) for j, v in enumerate(verts))
-        vel = as_float_tuple(o.get("velocity", [0.0, 0.0]), f"{where}.velocity", 2)
-        for k in o:
-            require(k in ("vertices", "velocity"), f"{where}.{k}", o[k], "allowed keys: vertices, velocity")
-        obstacles.append(ObstacleSpec(vs, vel))
-
+    obstacles = [o for o in (errs.take(lambda: _obstacle(o, f"obstacles[{i}]"))
+                             for i, o in enumerate(raw.get("obstacles") or [])) if o is not None]
     metrics = dict(raw.get("metrics") or {})
-    targets = parse_targets(raw.get("targets"))
-    return Scenario(
+    targets = errs.take(lambda: parse_targets(raw.get("targets")), ())
+    sensing = errs.take(lambda: parse_sensing(raw.get("sensing"), order), SensingConfig())
+    if sensing.enabled and any(v > 0 for v in noise.pose_std):
+        errs.check(all(sensing.profile_for(r.name, r.model.kind).ideal for r in robots), "noise.pose_std",
+                   list(noise.pose_std), "must be 0 when a [sensing] profile is not ideal (the profile models the noise)")
+    safety = errs.take(lambda: from_table(SafetyConfig, raw.get("safety"), "safety"), SafetyConfig())
+    if run is not None:
+        errs.check(not safety.enabled or safety.gamma * run.dt <= 1.0 + 1e-12, "safety.gamma", safety.gamma,
+                   f"must be <= 1/run.dt = {1.0 / run.dt:g} 1/s so a barrier cannot be overshot in one period")
+    _cross_field(run, robots, errs)
+    scenario = Scenario(
         id=sid,
         experiment=experiment,
         title=str(raw.get("title", sid)),
-        run=run,
+        run=run if run is not None else RunConfig(),
         network=network,
         noise=noise,
         sensors=sensors,
@@ -371,11 +471,18 @@ def parse_scenario(raw: Mapping[str, Any], base_dir: pathlib.Path | None = None,
         raw=raw,
         source=source,
         targets=targets,
+        sensing=sensing,
+        safety=safety,
     )
+    if checks is not None:
+        errs.items.extend(checks(scenario))
+    if errs.items:
+        raise ConfigErrors(errs.items)
+    return scenario
 
 
-def load_scenario(path: str | pathlib.Path) -> Scenario:
-    """Read and validate a scenario file (entry points only)."""
+def load_scenario(path: str | pathlib.Path, checks: Callable[["Scenario"], list[str]] | None = None) -> Scenario:
+    """Read and validate a scenario file (entry points only); ``checks`` as in :func:`parse_scenario`."""
     path = pathlib.Path(path)
     if not path.is_file():
         raise ConfigError(f"scenario file {str(path)!r} does not exist")
@@ -384,9 +491,9 @@ def load_scenario(path: str | pathlib.Path) -> Scenario:
             raw = json.loads(path.read_text())
         except json.JSONDecodeError as exc:
             raise ConfigError(f"{path.name}: not valid JSON: {exc}") from exc
-        return parse_scenario(raw, base_dir=path.parent, source=str(raw.get("_source", path.name)))
+        return parse_scenario(raw, base_dir=path.parent, source=str(raw.get("_source", path.name)), checks=checks)
     try:
         raw = tomllib.loads(path.read_text())
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{path.name}: not valid TOML: {exc}") from exc
-    return parse_scenario(raw, base_dir=path.parent, source=path.name)
+    return parse_scenario(raw, base_dir=path.parent, source=path.name, checks=checks)

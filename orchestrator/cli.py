@@ -23,6 +23,8 @@ from typing import Sequence
 
 from copath.scenario import ConfigError, Scenario, load_scenario
 
+from .validate import validate_file, validate_scenario
+
 __all__ = ["main"]
 
 CONFIGS = pathlib.Path(__file__).resolve().parents[1] / "configs"
@@ -70,17 +72,60 @@ def summary_table(metrics: dict) -> str:
     return "\n".join(lines)
 
 
+def _print_errors(cmd: str, config: str, exc: Exception) -> None:
+    """Every problem of a scenario on its own line: ``cmd: FILE: key = value is not allowed; rule``."""
+    errors = getattr(exc, "errors", None) or [str(exc)]
+    for e in errors:
+        print(f"{cmd}: {config}: {e}", file=sys.stderr)
+    if len(errors) > 1:
+        print(f"{cmd}: {len(errors)} problems; nothing was started", file=sys.stderr)
+
+
+def _cmd_validate(args: argparse.Namespace) -> int:
+    """``copath validate CONFIG...``: exit 0 when every file is valid, 2 otherwise."""
+    bad = 0
+    for config in args.configs:
+        try:
+            s = validate_file(config)
+        except (ConfigError, ValueError) as exc:
+            _print_errors("copath validate", config, exc)
+            bad += 1
+        else:
+            print(f"{config}: ok ({s.id}, {len(s.robots)} robots, "
+                  f"controllers: {', '.join(sorted({r.controller for r in s.robots}))})")
+    return 2 if bad else 0
+
+
+def _cmd_controllers(args: argparse.Namespace) -> int:
+    """``copath controllers``: every controller type a scenario may name, with its parameters."""
+    from agent.controllers import registered_names, resolve_controller
+
+    for name in registered_names():
+        try:
+            f = resolve_controller(name)
+        except ConfigError as exc:
+            print(f"{name:<22} (cannot load: {exc})")
+            continue
+        needs = [f"models: {', '.join(f.models)}" if f.models else "any model"]
+        if f.needs_path:
+            needs.append("needs a path")
+        params = "" if f.config is None else f"  config: {f.config.__module__}.{f.config.__qualname__}"
+        print(f"{name:<22} {'; '.join(needs)}{params}")
+    print("or an import path 'package.module:builder' (see docs/controllers.md)")
+    return 0
+
+
 def _cmd_run(args: argparse.Namespace) -> int:
     from .fleet import RunOptions, new_run_id, run_fleet
 
     try:
-        scenario = _overrides(args, load_scenario(args.config))
+        scenario = validate_scenario(_overrides(args, validate_file(args.config)))
         run_id = args.run_id or new_run_id(scenario.id)
         from copath.wire.keys import valid_run_id
 
         valid_run_id(run_id)
     except (ConfigError, ValueError) as exc:
-        print(f"copath run: {exc}", file=sys.stderr)
+        _print_errors("copath run", args.config, exc)
         return 2
     out = pathlib.Path(args.out or pathlib.Path("runs") / run_id)
     if args.inprocess:
@@ -188,6 +233,10 @@ def build_parser() -> argparse.ArgumentParser:
     rp.add_argument("-e", "--connect", action="append", default=[], metavar="ENDPOINT")
     rp.add_argument("-l", "--listen", action="append", default=[], metavar="ENDPOINT")
     sub.add_parser("scenarios", help="list the scenarios in configs/")
+    v = sub.add_parser("validate", help="check scenario files (controller parameters included) and print "
+                       "every problem; starts nothing")
+    v.add_argument("configs", nargs="+", metavar="CONFIG")
+    sub.add_parser("controllers", help="list the controller types (built-in and installed)")
     b = sub.add_parser("bench", help="benchmarks that print figures", add_help=False)
     b.add_argument("what", choices=("solve", "dmpc"))
     return p
@@ -209,7 +258,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         args, rest = parser.parse_known_args(argv)
         return _cmd_bench(args, rest)
     args = parser.parse_args(argv)
-    handlers = {"run": _cmd_run, "info": _cmd_info, "replay": _cmd_replay, "scenarios": _cmd_scenarios}
+    handlers = {"run": _cmd_run, "info": _cmd_info, "replay": _cmd_replay, "scenarios": _cmd_scenarios,
+                "validate": _cmd_validate, "controllers": _cmd_controllers}
     return handlers[args.command](args)
 
 

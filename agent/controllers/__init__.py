@@ -69,36 +69,41 @@ def extend_import_path(dirs: Iterable[str]) -> None:
             sys.path.insert(0, d)
 
 
-def _import(target: str, kind: str) -> object:
+def _import(target: str, kind: str, key: str) -> object:
     module, _, attr = target.partition(":")
     try:
         mod = importlib.import_module(module)
-    except ImportError as exc:
-        raise ConfigError(f"controller.type = {kind!r} is not allowed; cannot import module {module!r} "
-                          f"({exc}); an import path must be 'package.module:builder' importable from the "
-                          "scenario's directory, the current directory or an installed package") from None
+    except ModuleNotFoundError as exc:
+        if exc.name is not None and (module == exc.name or module.startswith(exc.name + ".")):
+            raise ConfigError(f"{key} = {kind!r} is not allowed; no module named {exc.name!r}: an import path "
+                              "must be 'package.module:builder' importable from the scenario's directory, the "
+                              "current directory or an installed package") from None
+        raise ConfigError(f"{key} = {kind!r} is not allowed; importing module {module!r} failed: {exc}") from None
+    except Exception as exc:  # the module exists but raises while importing: say where
+        raise ConfigError(f"{key} = {kind!r} is not allowed; importing module {module!r} failed: "
+                          f"{type(exc).__name__}: {exc}") from None
     try:
         return getattr(mod, attr)
     except AttributeError:
-        raise ConfigError(f"controller.type = {kind!r} is not allowed; module {module!r} has no attribute "
+        raise ConfigError(f"{key} = {kind!r} is not allowed; module {module!r} has no attribute "
                           f"{attr!r}") from None
 
 
-def resolve_controller(kind: str) -> ControllerFactory:
-    """The factory that ``controller.type = kind`` names (raises ConfigError if none)."""
+def resolve_controller(kind: str, key: str = "controller.type") -> ControllerFactory:
+    """The factory that ``controller.type = kind`` names (raises ConfigError naming ``key`` if none)."""
     if kind in CONTROLLERS:
-        return as_factory(_import(CONTROLLERS[kind], kind), kind)
+        return as_factory(_import(CONTROLLERS[kind], kind, key), kind)
     eps = _entry_points()
     if kind in eps:
         try:
             obj = eps[kind].load()
         except Exception as exc:  # a broken plug-in must not hide behind a traceback
-            raise ConfigError(f"controller.type = {kind!r} is not allowed; its entry point "
-                              f"{eps[kind].value!r} failed to load: {exc}") from None
+            raise ConfigError(f"{key} = {kind!r} is not allowed; its entry point "
+                              f"{eps[kind].value!r} failed to load: {type(exc).__name__}: {exc}") from None
         return as_factory(obj, kind)
     if ":" in kind:
-        return as_factory(_import(kind, kind), kind)
-    raise ConfigError(f"controller.type = {kind!r} is not allowed; registered: {', '.join(registered_names())}, "
+        return as_factory(_import(kind, kind, key), kind)
+    raise ConfigError(f"{key} = {kind!r} is not allowed; registered: {', '.join(registered_names())}, "
                       "or an import path 'package.module:builder'")
 
 

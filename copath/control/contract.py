@@ -31,12 +31,15 @@ Keys that do not apply are simply left out.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any, Mapping, Protocol, Sequence
+from typing import TYPE_CHECKING, Any, Mapping, Protocol, Sequence
 
 import numpy as np
 
 from copath.models import OmniModel, UnicycleModel
 from copath.paths import Path
+
+if TYPE_CHECKING:
+    from copath.scenario import Scenario
 
 __all__ = ["Observation", "PeerMessage", "Outgoing", "StepResult", "RobotContext", "Controller"]
 
@@ -72,6 +75,9 @@ class PeerMessage:
     payload: Mapping[str, Any]
     position: tuple[float, float] | None = None
     """Sender's own position estimate, carried for range-limited graphs (Def. 10)."""
+    position_cov: tuple[float, float, float] | None = None
+    """Covariance (Pxx, Pxy, Pyy) of ``position`` when the sender runs an estimator
+    (``[sensing]``, copath.estimation), so a receiver can weight it; else None."""
 
 
 @dataclass(frozen=True)
@@ -114,6 +120,25 @@ class RobotContext:
     seed: int = 0
     comm_range: float = 0.0
     """Communication range r [m] of a dynamic graph; 0 for a fixed graph."""
+
+    @classmethod
+    def for_robot(cls, scenario: "Scenario", name: str) -> "RobotContext":
+        """The context of robot ``name`` of a validated scenario."""
+        spec = scenario.robot(name)
+        comm_range = scenario.network.range_m
+        return cls(
+            name=name,
+            index=scenario.robot_names.index(name),
+            model=spec.model,
+            paths=scenario.paths,
+            path=spec.path,
+            neighbours=spec.neighbours,
+            robots=scenario.robot_names,
+            dt=scenario.run.dt,
+            params=dict(spec.params),
+            seed=scenario.run.seed,
+            comm_range=comm_range,
+        )
 
     @property
     def own_path(self) -> Path:

@@ -101,11 +101,11 @@ def controller(*, config: type | None = None, needs_path: bool = False, models: 
     return wrap
 
 
-def as_factory(obj: Any, name: str) -> ControllerFactory:
+def as_factory(obj: Any, name: str, key: str = "controller.type") -> ControllerFactory:
     """A :class:`ControllerFactory` for ``obj``: a factory, or a plain ``build(ctx)``."""
     if isinstance(obj, ControllerFactory):
         return ControllerFactory(obj.build, obj.config, obj.needs_path, obj.models, obj.check, name)
     if callable(obj):
         return ControllerFactory(lambda ctx, _params: obj(ctx), None, False, None, None, name)
-    raise ConfigError(f"controller.type = {name!r} is not allowed; it names {type(obj).__name__}, "
+    raise ConfigError(f"{key} = {name!r} is not allowed; it names {type(obj).__name__}, "
                       "expected a controller builder (a function build(ctx) or a @controller factory)")

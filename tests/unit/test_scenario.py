@@ -11,7 +11,7 @@ def _base(**over):
         "id": "e5.5",
         "paths": {"main": {"type": "circle", "radius": 1.0}},
         "controller": {"type": "consensus"},
-        "robots": [{"name": "r1", "path": "main", "neighbours": ["r2"]}, {"name": "r2", "path": "main"}],
+        "robots": [{"name": "r1", "path": "main", "neighbours": ["r2"]}, {"name": "r2", "path": "main", "pose": [0.0, 1.0, 0.0]}],
     }
     raw.update(over)
     return raw

@@ -1,0 +1,345 @@
+"""Decentralised safety filter: control barrier functions around any controller's command.
+
+The dissertation's multi-robot laws (DMPC Sec. 5.4, consensus Sec. 5.5, leader-following
+Sec. 5.3, the Chapter 6 navigation (6.11)) keep a formation geometry but have no
+collision avoidance between robots. This filter sits between a controller and the robot
+and changes the nominal command as little as possible so that robot discs (the models'
+``radius``, Chapter 3) never overlap, in the spirit of the safety barrier certificates of
+Wang, Ames and Egerstedt, "Safety barrier certificates for collisions-free multirobot
+systems", IEEE Trans. Robotics 33(3), 2017, in their decentralised form: each robot solves
+its own small QP with only what it hears and takes half of every pairwise constraint.
+
+Per robot i and heard neighbour j (position ``p_j`` from the neighbour's message, age
+``a_j``), with ``q_i`` the controlled point (the centre of an omni robot, a look-ahead
+point ``l`` ahead of a unicycle's axle centre, Fig. 3.2 kinematics (3.1)/(3.3)):
+
+    h_ij = ||q_i - p_j|| - (r_i + l + r_j + margin + s_j a_j)        (barrier, [m])
+    n_ij^T qdot_i >= -(gamma / 2) h_ij,   n_ij = (q_i - p_j) / ||q_i - p_j||
+
+where ``s_j`` bounds the neighbour's speed, so ``s_j a_j`` is the distance it may have
+moved since it sent its position. A range reading (sensor ring, Sec. 4.4.3) gives a point
+``o`` of an obstacle that does not cooperate: the robot takes the whole constraint
+``n^T qdot_i >= -gamma h``. ``qdot_i = G(theta) u`` is linear in the command, so the filter is
+the QP
+
+    min_u ||G (u - u_nom)||^2 + eps ||u - u_nom||^2 + rho (sigma + sigma^2)
+    s.t.  n^T G u + sigma >= -gamma_share h   (every barrier),  sigma >= 0,
+          model limits (omni wheel speeds (3.2); unicycle |v| <= v_max, |omega| <= omega_max),
+          optional speed cap |qdot| <= speed_max_mps,
+
+solved by CasADi's ``conic`` interface with DAQP. The slack ``sigma`` (exact penalty)
+keeps the QP feasible when a start pose or a stale neighbour already violates a barrier;
+stopping (u = 0) satisfies every barrier with h >= 0. A nominal command that already
+satisfies every barrier (after the model's own saturation) is returned unchanged: the
+filter is inactive, and bit for bit invisible, away from other robots.
+
+The derivation, the chosen constants and the guarantee are written out in
+``docs/safety.md``. The filter is pure: no clock, no transport; the runtime times it.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Mapping, Sequence
+
+import numpy as np
+
+from .config import require
+from .models import OmniModel, UnicycleModel
+
+__all__ = ["SafetyConfig", "Neighbour", "SafetyResult", "SafetyFilter", "SafetyGuard", "max_speed"]
+
+
+@dataclass(frozen=True)
+class SafetyConfig:
+    """The ``[safety]`` table of a scenario (one filter per robot, same settings for all)."""
+
+    enabled: bool = False
+    """Filter every robot's command (off unless the scenario turns it on)."""
+    gamma: float = 5.0
+    """Barrier gain gamma [1/s] (chosen): a gap h may close at most at rate gamma h, each robot of
+    a pair taking half; gamma * dt <= 1 keeps the discrete-time step from overshooting."""
+    margin_m: float = 0.03
+    """Clearance added to the sum of the two footprint radii [m] (chosen)."""
+    lookahead_m: float = 0.05
+    """Unicycles: distance l of the controlled point ahead of the axle centre [m] (chosen, as in
+    the Robotarium's look-ahead mapping); omni robots use their centre."""
+    speed_max_mps: float | None = None
+    """Speed bound of every filtered robot [m/s]: each filter caps its own robot's speed at it and
+    assumes it of its neighbours. None: no cap, neighbours bounded by their model's limit."""
+    max_age_s: float = 2.0
+    """A neighbour's position older than this is forgotten [s] (it left communication)."""
+    overhear: bool = True
+    """Fixed graphs: also read the position in the broadcasts of robots that are not graph
+    neighbours (the controller still hears only its neighbours)."""
+    use_ranges: bool = True
+    """Add a barrier per range reading when the scenario has sensors."""
+    slack_weight: float = 1.0e4
+    """Exact-penalty weight rho of the barrier slack (chosen)."""
+
+    def __post_init__(self) -> None:
+        require(self.gamma > 0, "safety.gamma", self.gamma, "must be > 0")
+        require(self.margin_m >= 0, "safety.margin_m", self.margin_m, "must be >= 0")
+        require(self.lookahead_m > 0, "safety.lookahead_m", self.lookahead_m, "must be > 0")
+        require(self.speed_max_mps is None or self.speed_max_mps > 0, "safety.speed_max_mps",
+                self.speed_max_mps, "must be > 0 (or left out for no cap)")
+        require(self.max_age_s > 0, "safety.max_age_s", self.max_age_s, "must be > 0")
+        require(self.slack_weight > 0, "safety.slack_weight", self.slack_weight, "must be > 0")
+
+
+@dataclass(frozen=True)
+class Neighbour:
+    """What the filter knows about another robot: its last heard position and how old it is."""
+
+    position: tuple[float, float]
+    """Centre [x, y] the robot sent [m]."""
+    age: float
+    """Receiver's clock minus the message's stamp [s]."""
+    radius: float
+    """Its footprint radius [m]."""
+    speed_max: float
+    """Bound on its speed [m/s] (inflates its disc by speed_max * age)."""
+
+
+@dataclass(frozen=True)
+class SafetyResult:
+    command: np.ndarray
+    """Command to apply (the nominal one, unchanged, when the filter is inactive)."""
+    active: bool
+    """True when the nominal command violated a barrier and the QP was solved."""
+    change: float
+    """Euclidean norm of the change of the command (0 when inactive)."""
+    slack: float = 0.0
+    """Slack sigma of the barriers (> 0: a barrier could not be met within the limits)."""
+    min_barrier: float = math.inf
+    """Smallest barrier value h over the constraints [m] (inf without constraints)."""
+    ok: bool = True
+    """False when the QP failed and the robot was stopped instead."""
+
+
+def max_speed(model: OmniModel | UnicycleModel) -> float:
+    """Largest translational speed the model's limits allow [m/s].
+
+    Unicycle: v_max. Omni: max over directions of qdot_max / max_k |M_k (cos phi, sin phi, 0)|
+    with the wheel map (3.2) (the wheel polygon's farthest vertex; 2.19 m/s for the defaults).
+    """
+    if isinstance(model, UnicycleModel):
+        return float(model.v_max)
+    phi = np.linspace(0.0, 2 * math.pi, 721)
+    d = np.stack([np.cos(phi), np.sin(phi)])
+    peak = np.max(np.abs(model.M[:, :2] @ d), axis=0)
+    return float(model.qdot_max / peak.min())
+
+
+_OCTAGON = np.array([[math.cos(a), math.sin(a)] for a in np.arange(4) * math.pi / 4])
+_COS8 = math.cos(math.pi / 8)
+
+
+class SafetyFilter:
+    """One robot's barrier QP, built once for its model; :meth:`filter` passes numbers only.
+
+    Parameters
+    ----------
+    config : SafetyConfig
+    model : OmniModel | UnicycleModel
+        The robot's own model (limits and radius).
+    dt : float
+        Control period [s]; gamma * dt must not exceed 1.
+    """
+
+    def __init__(self, config: SafetyConfig, model: OmniModel | UnicycleModel, dt: float) -> None:
+        require(config.gamma * dt <= 1.0 + 1e-12, "safety.gamma", config.gamma,
+                f"must be <= 1/run.dt = {1.0 / dt:g} 1/s so a barrier cannot be overshot in one period")
+        self.config = config
+        self.model = model
+        self.dt = float(dt)
+        self.omni = isinstance(model, OmniModel)
+        self.m = model.command_size
+        self.l = 0.0 if self.omni else config.lookahead_m
+        self.r_eff = model.radius + self.l
+        # command-space weight: point velocity metric G^T G plus a small term on the rest
+        self._W = np.diag([1.0, 1.0, model.L_w**2]) if self.omni else np.diag([1.0, self.l**2])
+        # limits as rows L u in [-lim, lim]
+        if self.omni:
+            self._L = model.M.copy()
+            self._lim = np.full(3, model.qdot_max)
+        else:
+            self._L = np.eye(2)
+            self._lim = np.array([model.v_max, model.omega_max])
+        self._cap = config.speed_max_mps
+        # speed cap rows C u in [-c, c]: omni, the inner octagon of the disc |(u, v)| <= cap
+        # (4 directions, bound cap cos(pi/8)); unicycle, |v| <= cap
+        if self.omni:
+            self._C = np.hstack([_OCTAGON, np.zeros((4, 1))])
+            self._c = np.full(4, (self._cap or 0.0) * _COS8)
+        else:
+            self._C = np.array([[1.0, 0.0]])
+            self._c = np.array([self._cap or 0.0])
+        self._solvers: dict[int, object] = {}
+
+    # -- geometry ----------------------------------------------------------------------
+    def point_map(self, theta: float) -> np.ndarray:
+        """G(theta): (2, m) map from the command to the controlled point's world velocity."""
+        c, s = math.cos(theta), math.sin(theta)
+        if self.omni:
+            return np.array([[c, -s, 0.0], [s, c, 0.0]])
+        return np.array([[c, -self.l * s], [s, self.l * c]])
+
+    def controlled_point(self, pose) -> np.ndarray:
+        x, y, th = (float(v) for v in pose)
+        return np.array([x + self.l * math.cos(th), y + self.l * math.sin(th)])
+
+    def barriers(self, pose, neighbours: Sequence[Neighbour], ranges=None, angles=None
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Barrier rows: normals n (k, 2), values h (k,) [m] and gains (k,) [1/s] so that
+        ``n @ qdot >= -gain * h`` is each barrier's condition; see the module docstring."""
+        cfg = self.config
+        q = self.controlled_point(pose)
+        pts, dist, gain = [], [], []
+        for nb in neighbours:
+            if nb.age > cfg.max_age_s:
+                continue
+            pts.append(nb.position)
+            dist.append(self.r_eff + nb.radius + cfg.margin_m + nb.speed_max * max(nb.age, 0.0))
+            gain.append(0.5 * cfg.gamma)  # its share: the neighbour's filter takes the other half
+        if cfg.use_ranges and ranges is not None and angles is not None:
+            x, y, th = (float(v) for v in pose)
+            r = np.asarray(ranges, dtype=float)
+            hit = np.isfinite(r)
+            a = th + np.asarray(angles, dtype=float)[hit]
+            rr = self.model.radius + r[hit]  # readings start on the robot's rim
+            for ox, oy in zip(x + rr * np.cos(a), y + rr * np.sin(a)):
+                pts.append((ox, oy))
+                dist.append(self.r_eff + cfg.margin_m)
+                gain.append(cfg.gamma)  # an obstacle does not cooperate: the whole constraint
+        if not pts:
+            return np.zeros((0, 2)), np.zeros(0), np.zeros(0)
+        d = q[None, :] - np.asarray(pts, dtype=float)
+        norm = np.linalg.norm(d, axis=1)
+        n = d / np.maximum(norm, 1e-9)[:, None]
+        return n, norm - np.asarray(dist), np.asarray(gain)
+
+    def centre_speed(self, u) -> float:
+        """Speed of the robot's centre under command u [m/s]."""
+        return float(np.hypot(u[0], u[1])) if self.omni else abs(float(u[0]))
+
+    # -- the filter --------------------------------------------------------------------
+    def filter(self, pose, nominal, neighbours: Sequence[Neighbour] = (), ranges=None, angles=None) -> SafetyResult:
+        """Minimally modify ``nominal`` so every barrier holds; return it unchanged if they do."""
+        u_nom = np.asarray(nominal, dtype=float).reshape(self.m)
+        n, h, gain = self.barriers(pose, neighbours, ranges, angles)
+        u_sat, _ = self.model.saturate(u_nom)  # what the robot would do with the nominal command
+        cap_ok = self._cap is None or self.centre_speed(u_sat) <= self._cap * (1 + 1e-9)
+        h_min = float(h.min()) if len(h) else math.inf
+        A = n @ self.point_map(float(pose[2]))  # (k, m): n^T G(theta)
+        rhs = -gain * h
+        if cap_ok and np.all(A @ u_sat >= rhs - 1e-12):
+            return SafetyResult(u_nom, False, 0.0, 0.0, h_min)
+        u, sigma, ok = self._solve(A, rhs, u_sat)
+        if not ok:  # stopping satisfies every barrier with h >= 0
+            u = np.zeros(self.m)
+        return SafetyResult(u, True, float(np.linalg.norm(u - u_nom)), sigma, h_min, ok)
+
+    def _solver(self, k: int):
+        """The conic for k barrier rows (built once per k; rows: limits, cap, barriers)."""
+        if k not in self._solvers:
+            import casadi as ca  # noqa: PLC0415  (only robots with a filter load CasADi)
+
+            nv = self.m + 1
+            rows = len(self._lim) + (len(self._c) if self._cap is not None else 0) + k
+            self._solvers[k] = ca.conic(f"safety_qp_{k}", "daqp",
+                                        {"h": ca.Sparsity.dense(nv, nv), "a": ca.Sparsity.dense(rows, nv)},
+                                        {"error_on_fail": False})
+        return self._solvers[k]
+
+    def _solve(self, A: np.ndarray, rhs: np.ndarray, u_ref: np.ndarray) -> tuple[np.ndarray, float, bool]:
+        k, m = A.shape
+        rho = self.config.slack_weight
+        H = np.zeros((m + 1, m + 1))
+        H[:m, :m] = 2 * self._W
+        H[m, m] = 2 * rho
+        g = np.zeros(m + 1)
+        g[:m] = -2 * self._W @ u_ref
+        g[m] = rho
+        blocks = [np.hstack([self._L, np.zeros((len(self._lim), 1))])]
+        lba, uba = [-self._lim], [self._lim]
+        if self._cap is not None:
+            blocks.append(np.hstack([self._C, np.zeros((len(self._c), 1))]))
+            lba.append(-self._c)
+            uba.append(self._c)
+        blocks.append(np.hstack([A, np.ones((k, 1))]))
+        lba.append(rhs)
+        uba.append(np.full(k, np.inf))
+        lbx = np.r_[np.full(m, -np.inf), 0.0]
+        ubx = np.full(m + 1, np.inf)
+        sol = self._solver(k)(h=H, g=g, a=np.vstack(blocks), lba=np.concatenate(lba), uba=np.concatenate(uba),
+                              lbx=lbx, ubx=ubx)
+        x = np.asarray(sol["x"]).ravel()
+        ok = bool(self._solver(k).stats().get("success", False)) and bool(np.all(np.isfinite(x)))
+        return x[:m], max(float(x[m]), 0.0), ok
+
+
+class SafetyGuard:
+    """One robot's filter plus what it has heard and what it did (pure: ``now`` is passed in).
+
+    The runtime calls :meth:`hear` with the position and stamp of every peer message it
+    accepts (after faults and the range filter; including overheard broadcasts of robots
+    that are not graph neighbours) and :meth:`apply` once per control instant.
+
+    Parameters
+    ----------
+    config : SafetyConfig
+    name : str
+        This robot's name.
+    models : Mapping[str, OmniModel | UnicycleModel]
+        Every robot's model, for footprint radii and speed bounds.
+    dt : float
+        Control period [s].
+    """
+
+    def __init__(self, config: SafetyConfig, name: str, models: Mapping[str, OmniModel | UnicycleModel],
+                 dt: float) -> None:
+        self.name = name
+        self.filter = SafetyFilter(config, models[name], dt)
+        cap = config.speed_max_mps
+        self._bounds = {n: (m.radius, cap if cap is not None else max_speed(m)) for n, m in models.items()}
+        self._heard: dict[str, tuple[float, float, float]] = {}
+        self.interventions = 0
+        """Control instants at which the command was changed."""
+        self.change_max = 0.0
+        """Largest norm of a command change."""
+        self.qp_failures = 0
+        """QP failures (the robot was stopped instead)."""
+        self.slack_steps = 0
+        """Instants at which a barrier could not be met within the limits (slack > 0)."""
+
+    def hear(self, sender: str, position, stamp: float) -> None:
+        """Remember the newest position a robot sent (older stamps are ignored)."""
+        if sender == self.name or sender not in self._bounds:
+            return
+        old = self._heard.get(sender)
+        if old is None or stamp >= old[2]:
+            self._heard[sender] = (float(position[0]), float(position[1]), float(stamp))
+
+    def neighbours(self, now: float) -> list[Neighbour]:
+        out = []
+        for sender, (x, y, stamp) in sorted(self._heard.items()):
+            r, s = self._bounds[sender]
+            out.append(Neighbour((x, y), max(now - stamp, 0.0), r, s))
+        return out
+
+    def apply(self, pose, command, now: float, ranges=None, angles=None) -> SafetyResult:
+        """Filter one command and record the intervention."""
+        res = self.filter.filter(pose, command, self.neighbours(now), ranges, angles)
+        if res.active:
+            self.interventions += 1
+            self.change_max = max(self.change_max, res.change)
+            self.qp_failures += int(not res.ok)
+            self.slack_steps += int(res.slack > 1e-9)
+        return res
+
+    def counters(self) -> dict[str, float | int]:
+        """Closing counters (``safety_*``) for the robot's stats record."""
+        return {"safety_interventions": self.interventions, "safety_change_max": round(self.change_max, 6),
+                "safety_qp_failures": self.qp_failures, "safety_slack_steps": self.slack_steps}

@@ -1,0 +1,171 @@
+"""Unit tests of the decentralised safety filter (copath.safety)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from copath.config import ConfigError, from_table
+from copath.models import OmniModel, UnicycleModel
+from copath.safety import Neighbour, SafetyConfig, SafetyFilter, SafetyGuard, max_speed
+
+CFG = SafetyConfig(enabled=True)
+
+
+def _pair_run(model, cmd, pose_a, pose_b, dt, steps, cfg=CFG, age=None):
+    """Two robots driving at each other, each filtering with what the other sent one tick ago."""
+    fa, fb = SafetyFilter(cfg, model, dt), SafetyFilter(cfg, model, dt)
+    pa, pb = np.array(pose_a, float), np.array(pose_b, float)
+    age = dt if age is None else age
+    s = max_speed(model)
+    dmin, results = math.inf, []
+    prev_a, prev_b = pa.copy(), pb.copy()
+    for _ in range(steps):
+        ra = fa.filter(pa, cmd, [Neighbour(tuple(prev_b[:2]), age, model.radius, s)])
+        rb = fb.filter(pb, cmd, [Neighbour(tuple(prev_a[:2]), age, model.radius, s)])
+        results += [ra, rb]
+        prev_a, prev_b = pa.copy(), pb.copy()
+        pa = model.step(pa, model.saturate(ra.command)[0], dt)
+        pb = model.step(pb, model.saturate(rb.command)[0], dt)
+        dmin = min(dmin, float(np.hypot(*(pa[:2] - pb[:2]))))
+    return dmin, results
+
+
+def test_safe_nominal_command_passes_unchanged():
+    f = SafetyFilter(CFG, OmniModel(), 0.05)
+    nominal = np.array([0.3, -0.1, 0.2])
+    far = [Neighbour((3.0, 0.0), 0.05, 0.2, 2.0), Neighbour((0.0, -2.5), 0.5, 0.2, 2.0)]
+    res = f.filter([0.0, 0.0, 0.4], nominal, far)
+    assert not res.active and res.change == 0.0
+    assert res.command is not None and np.array_equal(res.command, nominal)
+    # moving away from a close neighbour is safe too
+    res = f.filter([0.0, 0.0, 0.0], [-0.5, 0.0, 0.0], [Neighbour((0.5, 0.0), 0.05, 0.2, 0.5)])
+    assert not res.active and np.array_equal(res.command, [-0.5, 0.0, 0.0])
+    # a nominal command beyond the limits is left to the model's saturation when it is safe
+    fu = SafetyFilter(CFG, UnicycleModel(), 0.1)
+    res = fu.filter([0.0, 0.0, 0.0], [2.0, 0.0], [Neighbour((-3.0, 0.0), 0.1, 0.06, 0.5)])
+    assert not res.active and np.array_equal(res.command, [2.0, 0.0])
+
+
+def test_no_neighbours_no_ranges_is_identity():
+    f = SafetyFilter(CFG, UnicycleModel(), 0.1)
+    res = f.filter([1.0, 2.0, 0.3], [0.4, -0.7])
+    assert not res.active and np.array_equal(res.command, [0.4, -0.7])
+
+
+@pytest.mark.parametrize("model,dt,cmd", [
+    (OmniModel(), 0.05, [1.0, 0.0, 0.0]),
+    (UnicycleModel(), 0.1, [0.5, 0.0]),
+])
+def test_head_on_robots_are_kept_apart(model, dt, cmd):
+    # exactly head-on, in each robot's body frame the nominal drives straight at the other
+    dmin, results = _pair_run(model, cmd, [0.0, 0.0, 0.0], [2.0, 0.0, math.pi], dt, steps=int(8 / dt))
+    assert dmin >= 2 * model.radius  # discs never overlap
+    assert any(r.active for r in results)  # and the filter had to act
+    # without the filter they would have collided (anti-triviality)
+    pa, pb = np.array([0.0, 0.0, 0.0]), np.array([2.0, 0.0, math.pi])
+    d0 = math.inf
+    for _ in range(int(8 / dt)):
+        pa, pb = model.step(pa, model.saturate(cmd)[0], dt), model.step(pb, model.saturate(cmd)[0], dt)
+        d0 = min(d0, float(np.hypot(*(pa[:2] - pb[:2]))))
+    assert d0 < 2 * model.radius
+
+
+def test_head_on_with_stale_positions_is_kept_apart():
+    # positions 0.3 s old (delay) at 0.1 s period: the filter inflates by the distance moved
+    model = OmniModel()
+    cfg = SafetyConfig(enabled=True, speed_max_mps=1.0)
+    dmin, _ = _pair_run(model, [1.0, 0.0, 0.0], [0.0, 0.0, 0.0], [3.0, 0.02, math.pi], 0.1, 80, cfg, age=0.3)
+    assert dmin >= 2 * model.radius
+
+
+def test_unicycles_with_an_offset_pass_each_other():
+    # the look-ahead point lets a unicycle steer around instead of only braking
+    model = UnicycleModel()
+    dmin, results = _pair_run(model, [0.3, 0.0], [0.0, 0.02, 0.0], [3.0, 0.0, math.pi], 0.1, 150)
+    assert dmin >= 2 * model.radius
+    assert any(r.active for r in results)
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_command_stays_within_limits(seed):
+    rng = np.random.default_rng(seed)
+    omni, uni = OmniModel(), UnicycleModel(v_max=0.5, omega_max=1.0)
+    cap = SafetyConfig(enabled=True, speed_max_mps=0.8)
+    for model, cfg in ((omni, CFG), (omni, cap), (uni, CFG), (uni, cap)):
+        f = SafetyFilter(cfg, model, 0.1)
+        for _ in range(30):
+            pose = rng.uniform(-0.2, 0.2, 3)
+            nbrs = [Neighbour(tuple(rng.uniform(-0.6, 0.6, 2)), 0.1, 0.1, 0.5) for _ in range(rng.integers(1, 5))]
+            nominal = rng.uniform(-4.0, 4.0, model.command_size)
+            res = f.filter(pose, nominal, nbrs)
+            if not res.active:
+                continue
+            u = res.command
+            if model is omni:
+                assert np.max(np.abs(model.wheel_speeds(u))) <= model.qdot_max * (1 + 1e-6)
+            else:
+                assert abs(u[0]) <= model.v_max * (1 + 1e-6) and abs(u[1]) <= model.omega_max * (1 + 1e-6)
+            if cfg.speed_max_mps is not None:
+                assert f.centre_speed(u) <= cfg.speed_max_mps * (1 + 1e-6)
+
+
+def test_speed_cap_is_enforced_away_from_everyone():
+    f = SafetyFilter(SafetyConfig(enabled=True, speed_max_mps=0.5), OmniModel(), 0.1)
+    res = f.filter([0.0, 0.0, 0.0], [1.0, 0.0, 0.0])
+    assert res.active and f.centre_speed(res.command) <= 0.5 + 1e-9
+    # the cap is the inscribed octagon of the speed disc; along x it meets a face at cap cos(pi/8)
+    assert res.command[0] == pytest.approx(0.5 * math.cos(math.pi / 8), abs=1e-6)
+
+
+def test_range_reading_stops_a_robot_at_a_wall():
+    model = UnicycleModel()
+    f = SafetyFilter(CFG, model, 0.1)
+    angles = 2 * math.pi * np.arange(12) / 12
+    pose = np.array([0.0, 0.0, 0.0])
+    wall_x = 0.6
+    for _ in range(60):
+        ranges = np.full(12, np.inf)
+        ranges[0] = wall_x - pose[0] - model.radius  # ray straight ahead
+        res = f.filter(pose, [0.5, 0.0], ranges=ranges, angles=angles)
+        pose = model.step(pose, model.saturate(res.command)[0], 0.1)
+    assert pose[0] + model.radius <= wall_x
+
+
+def test_barriers_inflate_stale_neighbours():
+    f = SafetyFilter(CFG, OmniModel(), 0.1)
+    fresh = f.barriers([0, 0, 0], [Neighbour((1.0, 0.0), 0.0, 0.2, 1.0)])[1][0]
+    stale = f.barriers([0, 0, 0], [Neighbour((1.0, 0.0), 0.25, 0.2, 1.0)])[1][0]
+    assert fresh - stale == pytest.approx(0.25)  # 1 m/s times 0.25 s
+    gone = f.barriers([0, 0, 0], [Neighbour((1.0, 0.0), CFG.max_age_s + 1, 0.2, 1.0)])[1]
+    assert len(gone) == 0
+
+
+def test_guard_keeps_newest_position_and_counts():
+    models = {"a": OmniModel(), "b": OmniModel()}
+    g = SafetyGuard(CFG, "a", models, 0.1)
+    g.hear("b", [0.5, 0.0], 1.0)
+    g.hear("b", [5.0, 0.0], 0.5)  # older message arriving late is ignored
+    (nb,) = g.neighbours(1.2)
+    assert nb.position == (0.5, 0.0) and nb.age == pytest.approx(0.2)
+    assert nb.speed_max == pytest.approx(max_speed(OmniModel()))
+    res = g.apply([0.0, 0.0, 0.0], [1.0, 0.0, 0.0], 1.2)
+    assert res.active and g.interventions == 1 and g.change_max == pytest.approx(res.change)
+    assert g.counters()["safety_interventions"] == 1
+
+
+def test_max_speed_of_models():
+    assert max_speed(UnicycleModel(v_max=0.4)) == 0.4
+    # omni: qdot_max / cos(pi/6) along a wheel's axis direction
+    assert max_speed(OmniModel()) == pytest.approx(1.9 / math.cos(math.pi / 6), rel=1e-4)
+
+
+def test_config_errors_name_key_value_and_rule():
+    with pytest.raises(ConfigError, match=r"safety.gamma = -1.0 is not allowed; must be > 0"):
+        from_table(SafetyConfig, {"gamma": -1.0}, "safety")
+    with pytest.raises(ConfigError, match=r"safety.speed_max_mps = 0.0 is not allowed"):
+        from_table(SafetyConfig, {"speed_max_mps": 0.0}, "safety")
+    with pytest.raises(ConfigError, match=r"safety.gamma = 30.0 is not allowed; must be <= 1/run.dt"):
+        SafetyFilter(SafetyConfig(gamma=30.0), OmniModel(), 0.05)

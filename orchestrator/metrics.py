@@ -26,8 +26,9 @@ import numpy as np
 
 from copath.scenario import Scenario
 from copath.wire.keys import Keys
-from copath.wire.messages import Command, End, Event, Stats, Telemetry, Truth
+from copath.wire.messages import Command, End, Estimate, Event, Stats, Telemetry, Truth
 
+from .metrics_estimation import ESTIMATION_KEYS, estimation_metrics
 from .metrics_truth import truth_metrics
 
 __all__ = ["RobotTrace", "Trace", "trace_from_records", "compute_metrics", "METRIC_KEYS"]
@@ -44,7 +45,7 @@ ROBOT_KEYS = (
     "wheel_speed_max_mps",
     "solver_failures",
     "control_effort",
-)
+) + ESTIMATION_KEYS
 FLEET_KEYS = (
     "coordination_error_max_m",
     "coordination_error_rms_m",
@@ -107,6 +108,8 @@ class Trace:
     events: list[Event] = field(default_factory=list)
     end: End | None = None
     sim_time_s: float = 0.0
+    estimates: dict[str, list[Estimate]] = field(default_factory=dict)
+    """Each robot's Estimate records (``[sensing]`` estimator; metrics_estimation.py)."""
 
 
 def trace_from_records(records, keys: Keys, radii: dict[str, float] | None = None) -> Trace:
@@ -118,6 +121,7 @@ def trace_from_records(records, keys: Keys, radii: dict[str, float] | None = Non
     events: list[Event] = []
     end = None
     dt = 0.0
+    estimates: dict[str, list[Estimate]] = {}
     for _, key, rec in records:
         rel = keys.relative(key)
         if isinstance(rec, Truth):
@@ -130,6 +134,8 @@ def trace_from_records(records, keys: Keys, radii: dict[str, float] | None = Non
             stats[rec.proc] = dict(rec.counters)
         elif isinstance(rec, Event):
             events.append(rec)
+        elif isinstance(rec, Estimate):
+            estimates.setdefault(rel.split("/")[1], []).append(rec)
         elif isinstance(rec, End):
             end = rec
         elif getattr(rec, "TYPE", "") == "start":
@@ -158,7 +164,7 @@ def trace_from_records(records, keys: Keys, radii: dict[str, float] | None = Non
             radius=(radii or {}).get(n, 0.0),
         )
     sim_time = float(truth[-1].t + dt) if truth else 0.0
-    return Trace(robots, dt, stats, events, end, sim_time)
+    return Trace(robots, dt, stats, events, end, sim_time, estimates)
 
 
 def _f(x) -> float | None:
@@ -271,6 +277,7 @@ def compute_metrics(
             robots[r.name] = dict.fromkeys(ROBOT_KEYS)
             continue
         robots[r.name] = _robot_metrics(rt, settle, r.model.kind, missed.get(r.name, 0))
+        robots[r.name].update(estimation_metrics(trace.estimates.get(r.name), rt.pose_at))
     fleet: dict[str, Any] = dict.fromkeys(FLEET_KEYS)
     fleet.update(truth_metrics(trace, scenario))
     fleet["coordination_error_max_reported_m"], fleet["coordination_error_rms_reported_m"] = \

@@ -1,15 +1,15 @@
 """The one Zenoh session factory and link of copath (nothing else opens a session).
 
-Isolation (FIELD_NOTES): multicast scouting is always off; by default sessions listen
-and connect on loopback only, on a port chosen per run, so two runs on one machine
-never hear each other. The orchestrator hosts the run's router itself (a Python
+Isolation (docs/measurements.md, M1-M3): multicast scouting is always off; by default
+sessions listen and connect on loopback only, on a port chosen per run, so two runs on
+one machine never hear each other. The orchestrator hosts the run's router itself (a Python
 session in ``router`` mode: no zenohd to install or start); simulator and agents
 connect to it as clients. ``--connect``/``--listen`` endpoints allow multi-host runs.
 
-Pitfalls handled here: a subscriber still declared at interpreter exit hangs the
-process, so :class:`ZenohLink` undeclares everything in ``close()`` (use it as a
-context manager); callbacks catch their own exceptions and count rejects; records that
-must not be lost are published with congestion control BLOCK.
+Pitfalls handled here (docs/measurements.md, M5-M6): a subscriber still declared at
+interpreter exit hangs the process, so :class:`ZenohLink` undeclares everything in
+``close()`` (use it as a context manager); callbacks catch their own exceptions and
+count rejects; records that must not be lost are published with congestion control BLOCK.
 """
 
 from __future__ import annotations
@@ -77,7 +77,7 @@ class SessionConfig:
         conf.insert_json5("connect/endpoints", json.dumps(list(self.connect)))
         conf.insert_json5("listen/endpoints", json.dumps(list(self.listen)))
         if self.mode == "client":
-            # keep retrying the router instead of failing at once (FIELD_NOTES)
+            # keep retrying the router instead of failing at once (docs/measurements.md, M3)
             conf.insert_json5("connect/timeout_ms", "-1")
         if self.lease_ms:
             conf.insert_json5("transport/link/tx/lease", str(int(self.lease_ms)))

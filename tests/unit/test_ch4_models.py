@@ -81,7 +81,7 @@ def test_pf_error_dynamics_match_kinematics(eight, seed):
 
 
 def test_pf_virtual_inputs_are_regulation_form(eight):
-    """(4.4)-(4.5): xdot_e = A(kappa s-dot) x_e + u_e with the corrected u_3 (ambiguity #1)."""
+    """(4.4)-(4.5): xdot_e = A(kappa s-dot) x_e + u_e with the corrected u_3 (docs/ambiguities.md, A1)."""
     xe = np.array([0.1, -0.2, 0.3])
     body, sdot, k = np.array([0.8, 0.1, 0.4]), 0.9, 1.5
     ue = _num(pf_virtual_inputs(xe, body, sdot, k * sdot))
@@ -185,7 +185,8 @@ def test_linear_model_is_the_linearisation():
 
 
 def test_condensing_matches_rollout():
-    """(4.31) with the corrected products (ambiguity #5): X = G x + S U equals the recursion."""
+    """(4.31) with the corrected products (docs/ambiguities.md, A5): X = G x + S U equals
+    the recursion."""
     rng = np.random.default_rng(3)
     N, Ts = 6, 0.05
     kap, uR = rng.normal(0, 2, N), rng.uniform(0.5, 1.2, N)
@@ -271,7 +272,8 @@ def test_unicycle_error_dynamics_match_kinematics(seed):
 
 
 def test_unicycle_terminal_law_inverts_virtual_inputs():
-    """(4.50)-(4.51) read per ambiguity #9: u_e(terminal commands) = -(alpha x, beta theta, gamma eta)."""
+    """(4.50)-(4.51) read as docs/ambiguities.md, A9: u_e(terminal commands) =
+    -(alpha x, beta theta, gamma eta)."""
     xe = np.array([0.2, -0.1, 0.3, -0.05])
     gains, k, v_d, vdot_d = (2.5, 1.0, 1.0), 1.0, 0.5, 0.0
     sdot, om, a = terminal_law(xe, v_d, vdot_d, k, gains)
@@ -280,7 +282,8 @@ def test_unicycle_terminal_law_inverts_virtual_inputs():
 
 
 def test_obstacle_cost_magnitudes_and_scan_points():
-    """(4.54) with (4.55): about 0.55 at 0.1 m and 0.01 at 0.5 m straight ahead (SPEC 2(c))."""
+    """(4.54) with (4.55): about 0.55 at 0.1 m and 0.01 at 0.5 m straight ahead
+    (docs/derivations.md, D8)."""
     pose = np.array([0.0, 0.0, 0.0])
     c01 = float(obstacle_cost(pose, [[0.1, 0.0]], [1.0], 1.5, 0.01, 10.0))
     c05 = float(obstacle_cost(pose, [[0.5, 0.0]], [1.0], 1.5, 0.01, 10.0))

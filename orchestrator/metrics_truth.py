@@ -12,7 +12,10 @@ lemniscate); the team's desired geometry turns those path coordinates into
   defined relative to a leader (Sec. 5.3, Sec. 5.5.5), the mean of all xi otherwise;
 - each robot's slot at xi_ref (a point of its offset curve), so the formation error of a
   robot is the distance from its true position to that slot;
-- the formation changes under way at xi_ref (quintic transitions, (5.1)-(5.3)).
+- the formation changes under way at xi_ref: the scheduled quintic transitions
+  ((5.1)-(5.3)), each extended until every robot is within ``[metrics]
+  formation_tolerance_m`` of its new slot. Errors during a change are reported as
+  ``formation_error_transition_max_m``, not dropped.
 
 Families (the controllers' ``type``):
 
@@ -184,6 +187,10 @@ def _switching(scenario: Scenario) -> TeamGeometry:
                         slots=slots, in_transition=in_transition, period=period)
 
 
+FORMATION_TOLERANCE_M = 0.05
+"""A formation change is over when every robot is this close to its new slot [m]
+(``[metrics] formation_tolerance_m``; chosen as the controllers' arrival tolerance)."""
+
 FAMILIES: dict[frozenset, Callable[[Scenario], TeamGeometry]] = {
     frozenset({"consensus"}): _consensus,
     frozenset({"dmpc"}): _dmpc,
@@ -246,7 +253,23 @@ def truth_series(trace, scenario: Scenario, geometry: TeamGeometry | None = None
         coord = np.max([np.abs(wrap_near(XI[a] - XI[b], geo.period)) for a, b in pairs], axis=0)
     slots = geo.slots(xi_ref)
     form = {n: np.hypot(*(trace.robots[n].pose[:T, :2] - P).T) for n, P in slots.items() if n in S}
-    return TruthSeries(t, S, XI, xi_ref, coord, form, np.asarray(geo.in_transition(xi_ref), dtype=bool))
+    moving = np.asarray(geo.in_transition(xi_ref), dtype=bool)
+    if form and moving.any():
+        tol = float(scenario.metrics.get("formation_tolerance_m", FORMATION_TOLERANCE_M))
+        moving = _until_arrived(moving, np.max(list(form.values()), axis=0), tol)
+    return TruthSeries(t, S, XI, xi_ref, coord, form, moving)
+
+
+def _until_arrived(window: np.ndarray, error: np.ndarray, tol: float) -> np.ndarray:
+    """A formation change lasts from the start of its scheduled window until every robot is
+    within ``tol`` of its new slot (the end of the window at the earliest)."""
+    out = window.copy()
+    ends = np.nonzero(window[:-1] & ~window[1:])[0] + 1
+    for k in ends:
+        arrived = np.nonzero(error[k:] <= tol)[0]
+        stop = k + arrived[0] if len(arrived) else len(out)
+        out[k:stop] = True
+    return out
 
 
 def _f(x) -> float | None:

@@ -1,0 +1,119 @@
+"""Metrics from the truth: path coordinates of true positions, formation slots, and a
+controller whose telemetry lies (Sec. 5.5 team, E5.5)."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import pathlib
+
+import numpy as np
+import pytest
+
+import agent.controllers as registry
+from agent.controllers.consensus import ConsensusConfig, ConsensusController
+from copath.config import from_table
+from copath.paths import circle, lemniscate, line
+from copath.scenario import load_scenario
+from copath.slots import offset_points, solve_coordinate, switching_offsets, track_coordinate, wrap_near
+from orchestrator.inprocess import run_scenario
+
+CONFIGS = pathlib.Path(__file__).resolve().parents[2] / "configs"
+LIAR_OFFSET = 1.0
+"""The lying robot keeps a column slot this far [m] ahead of the scenario's."""
+
+
+def test_track_coordinate_keeps_its_branch_through_the_lemniscate_crossing():
+    path = lemniscate(2.3)
+    s_true = np.linspace(-1.0, 1.6 * path.length, 1500)  # crosses the centre three times
+    rng = np.random.default_rng(3)
+    xy = path.pos(s_true) + rng.normal(0.0, 0.03, (len(s_true), 2))  # 3 cm of position noise
+    s = track_coordinate(path, xy)
+    assert np.all(np.abs(np.diff(s)) < 0.2)  # continuous: no jump to the other branch
+    # within the noise of the along-track projection
+    assert np.max(np.abs(s - s_true)) < 0.15 and np.mean(np.abs(s - s_true)) < 0.04
+    exact = track_coordinate(path, path.pos(s_true))
+    assert np.max(np.abs(exact - s_true)) < 1e-6
+
+
+def test_track_coordinate_beyond_the_ends_of_an_open_path_and_around_a_circle():
+    path = line((0.0, 0.0), 0.0, 4.0)
+    xy = np.column_stack([np.linspace(-1.5, 5.0, 50), np.full(50, 0.3)])
+    assert np.allclose(track_coordinate(path, xy), xy[:, 0], atol=1e-6)
+    c = circle(1.0)
+    s_true = np.linspace(0.5, 3 * c.length, 400)  # three laps, unwrapped
+    assert np.allclose(track_coordinate(c, 1.2 * c.pos(s_true)), s_true, atol=1e-6)
+
+
+def test_switching_offsets_and_the_slot_coordinate():
+    slots, switch_at, tm = [(0.0, 0.5), (0.6, 0.0)], [3.0], 2.0
+    s = np.linspace(0.0, 10.0, 1001)
+    sd, q, moving = switching_offsets(slots, switch_at, tm, s)
+    assert np.all(sd[s <= 3.0] == 0.0) and np.all(q[s <= 3.0] == 0.5)
+    assert np.allclose(sd[s >= 5.0], 0.6) and np.allclose(q[s >= 5.0], 0.0)
+    assert np.all(moving == ((s > 3.0) & (s < 5.0)))
+    xi = np.linspace(0.0, 9.0, 91)
+    s_at = solve_coordinate(xi, lambda v: switching_offsets(slots, switch_at, tm, v)[0])
+    assert np.allclose(s_at - switching_offsets(slots, switch_at, tm, s_at)[0], xi, atol=1e-8)
+    p = offset_points(line(), np.array([1.0]), -0.2)
+    assert np.allclose(p, [[1.0, -0.2]])
+    assert wrap_near(11.0, 12.0) == pytest.approx(-1.0) and wrap_near(11.0, 0.0) == pytest.approx(11.0)
+
+
+class LyingController:
+    """A Sec. 5.5 robot that keeps the wrong slot and says everything is perfect."""
+
+    def __init__(self, inner: ConsensusController) -> None:
+        self.inner = inner
+
+    def step(self, obs, inbox):
+        res = self.inner.step(obs, inbox)
+        tel = dict(res.telemetry, formation_error=0.0, in_transition=False)
+        return dataclasses.replace(res, telemetry=tel)
+
+
+def build_liar(ctx):
+    """``consensus`` whose robot r1 runs LIAR_OFFSET ahead of its slot and reports xi
+    against that offset (so its neighbours and its telemetry agree with each other)."""
+    params = dict(ctx.params)
+    if ctx.name == "r1":
+        params["s_d"] = float(params.get("s_d", 0.0)) + LIAR_OFFSET
+    cfg = from_table(ConsensusConfig, params, f"robots.{ctx.name}.controller")
+    inner = ConsensusController(ctx, cfg)
+    return LyingController(inner) if ctx.name == "r1" else inner
+
+
+@pytest.fixture(scope="module")
+def e55():
+    return load_scenario(CONFIGS / "e5.5-column-lemniscate.toml")
+
+
+def test_truth_agrees_with_honest_telemetry(e55):
+    f = run_scenario(e55).metrics["fleet"]
+    assert f["coordination_error_max_m"] < 0.02
+    assert abs(f["coordination_error_max_m"] - f["coordination_error_max_reported_m"]) < 0.01
+    assert f["formation_error_max_m"] < 0.02 and f["formation_error_max_reported_m"] is None
+    assert f["formation_error_transition_max_m"] is None  # no formation change in E5.5
+
+
+def test_a_controller_whose_telemetry_lies_is_caught(e55, monkeypatch):
+    monkeypatch.setitem(registry.CONTROLLERS, "consensus", f"{__name__}:build_liar")
+    res = run_scenario(e55)
+    f = res.metrics["fleet"]
+    # the telemetry is fooled: xi agree, formation "perfect"
+    assert f["coordination_error_max_reported_m"] < 0.02
+    assert f["formation_error_max_reported_m"] == 0.0
+    # the truth is not: r1 stands LIAR_OFFSET ahead of its slot
+    assert f["coordination_error_max_m"] == pytest.approx(LIAR_OFFSET, abs=0.05)
+    # formation error against the team's mean coordinate: r1 is 2/3 of the offset off
+    assert f["formation_error_max_m"] == pytest.approx(2 * LIAR_OFFSET / 3, abs=0.05)
+    assert json.dumps(res.metrics)  # still a valid metrics.json
+
+
+def test_single_robot_has_no_team_figures():
+    f = run_scenario(load_scenario(CONFIGS / "e4.4-unicycle-nmpc-pf-circle.toml"), duration_s=1.0).metrics["fleet"]
+    for k in ("coordination_error_max_m", "formation_error_max_m", "formation_error_transition_max_m",
+              "coordination_error_max_reported_m"):
+        assert f[k] is None
+    assert not math.isnan(f["min_separation_m"] or 0.0)

@@ -103,6 +103,27 @@ class OmniModel:
             ]
         )
 
+    def max_speed(self, omega):
+        """Translational speed bound r(omega) = qdot_max - L_w |omega| of (4.17)-(4.18) [m/s]."""
+        return rotation_speed_limit(omega, self.qdot_max, self.L_w)
+
+    def max_rotation(self, u):
+        """Yaw-rate bound omega_l(u) = (qdot_max - |u|) / L_w [rad/s]: the inverse of
+        (4.18), printed in Sec. 4.3 as 9.7436 - 5.1283 u."""
+        return np.maximum(0.0, (self.qdot_max - np.abs(u)) / self.L_w)
+
+    def max_tangent_speed(self, kappa):
+        """Largest speed along a curve of curvature kappa when the body turns with the
+        tangent (omega = kappa u): the u solving u = r(kappa u), qdot_max / (1 + L_w |kappa|)."""
+        return self.qdot_max / (1.0 + self.L_w * np.abs(kappa))
+
+    def saturate_wheels(self, qdot) -> np.ndarray:
+        """Wheel rim speeds (3,) scaled by a common factor so that none exceeds qdot_max
+        (the direction of motion is kept, (3.2))."""
+        qdot = np.asarray(qdot, dtype=float).reshape(3)
+        peak = float(np.max(np.abs(qdot)))
+        return qdot * (self.qdot_max / peak) if peak > self.qdot_max else qdot
+
     def saturate(self, cmd) -> tuple[np.ndarray, bool]:
         """Scale a command so every wheel speed is within qdot_max.
 

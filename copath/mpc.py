@@ -67,7 +67,9 @@ forgets it. ``solve(..., guess=(X, U))`` overrides the warm start once and
 Helpers for controllers: :class:`SolverFields` (inherit it in a controller config to
 accept ``solver``, ``qp_solver``, ``hessian``, ``max_iter``, ``jit``, ``tol`` and the
 slack weights in the scenario table), :class:`PathTable` (fast x, y, theta, kappa,
-dkappa/ds look-ups along a horizon) and :func:`rk4`.
+dkappa/ds look-ups along a horizon; defined in :mod:`copath.paths`, re-exported here),
+:func:`rk4`, and the one table of solver options (:data:`QP_OPTIONS`, :func:`qp_options`,
+:func:`jit_options`) that every solver built here or in a controller uses.
 """
 
 from __future__ import annotations
@@ -81,6 +83,7 @@ import casadi as ca
 import numpy as np
 
 from .config import require
+from .paths import PathTable  # noqa: F401  (re-exported: the one path table lives in copath.paths)
 
 __all__ = [
     "SolverConfig",
@@ -92,6 +95,9 @@ __all__ = [
     "rk4",
     "weighted",
     "jit_available",
+    "jit_options",
+    "qp_options",
+    "QP_OPTIONS",
     "SOLVER_METHODS",
     "QP_SOLVERS",
 ]
@@ -102,7 +108,32 @@ SOLVER_METHODS = ("sqp", "ipopt")
 QP_SOLVERS = ("qrqp", "osqp", "qpoases")
 HESSIANS = ("gauss-newton", "exact")
 
+QP_OPTIONS: dict[str, dict] = {
+    "qrqp": {"print_iter": False, "print_header": False, "print_info": False, "error_on_fail": False},
+    "osqp": {"osqp": {"verbose": False, "eps_abs": 1e-8, "eps_rel": 1e-8, "polish": True},
+             "error_on_fail": False},
+    "qpoases": {"printLevel": "none", "error_on_fail": False},
+    "daqp": {"error_on_fail": False},
+}
+"""The one table of QP-solver options (CasADi ``conic`` plug-ins): quiet, and a failed
+solve is reported in the return status instead of raised (the fallback policy decides)."""
+
 _JIT_OK: bool | None = None
+
+
+def qp_options(qp_solver: str, **extra) -> dict:
+    """A fresh copy of the :data:`QP_OPTIONS` of ``qp_solver`` updated with ``extra``
+    (e.g. ``sparse=True`` for qpOASES inside the SQP, ``warm_start_primal=True`` for OSQP)."""
+    if qp_solver not in QP_OPTIONS:
+        raise ValueError(f"qp_solver = {qp_solver!r} is not allowed; choose one of {sorted(QP_OPTIONS)}")
+    opts = {k: (dict(v) if isinstance(v, dict) else v) for k, v in QP_OPTIONS[qp_solver].items()}
+    opts.update(extra)
+    return opts
+
+
+def jit_options(flags: Sequence[str] = ("-O2",)) -> dict:
+    """CasADi options that JIT-compile a Function with the system C compiler (``shell``)."""
+    return {"jit": True, "compiler": "shell", "jit_options": {"flags": list(flags), "verbose": False}}
 
 # statuses whose iterate is used when it is feasible (a warm-started SQP that stops on
 # its iteration limit still returns a usable, constraint-satisfying plan)
@@ -195,52 +226,6 @@ class SolverFields:
         return SolverConfig(method=self.solver, qp_solver=self.qp_solver, hessian=self.hessian,
                             max_iter=self.max_iter, jit=self.jit, slack_weight=self.slack_weight,
                             slack_weight_quadratic=self.slack_weight_quadratic, tol=self.tol)
-
-
-class PathTable:
-    """Fast look-up of path geometry along a horizon (uniform-grid linear interpolation).
-
-    MPC controllers evaluate x, y, theta, kappa and dkappa/ds at N+1 arc lengths every
-    step; :class:`copath.paths.Path` evaluates the parametric curve with finite-difference
-    stencils (accurate but ~1 ms per call), so the geometry is tabulated once here on a
-    grid of ``step`` metres (default 1 mm: interpolation errors below 1e-6 m and 1e-4
-    1/m on the published paths). Closed paths wrap (theta gains 2 pi per lap and
-    winding); open paths are tabulated on [-length, 2 length] including their straight
-    extensions and clamped beyond.
-    """
-
-    def __init__(self, path, step: float = 1e-3) -> None:
-        self.path = path
-        self.closed = bool(path.closed)
-        self.length = float(path.length)
-        lo, hi = (0.0, self.length) if self.closed else (-self.length, 2 * self.length)
-        n = int(math.ceil((hi - lo) / step)) + 1
-        grid = np.linspace(lo, hi, n)
-        x, y, th, k = path.frame(grid)
-        dk = np.atleast_1d(path.dkappa(grid))
-        self._lo, self._h, self._n = lo, (hi - lo) / (n - 1), n
-        self._tab = np.stack([x, y, th, k, dk])
-        self._winding = 2 * math.pi * getattr(path, "winding", 0)
-
-    def __call__(self, s) -> np.ndarray:
-        """(5, n) rows x, y, theta, kappa, dkappa at arc lengths s (n,)."""
-        s = np.atleast_1d(np.asarray(s, float))
-        laps = np.zeros_like(s)
-        if self.closed:
-            laps = np.floor(s / self.length)
-            s = s - laps * self.length
-        f = np.clip((s - self._lo) / self._h, 0.0, self._n - 1.000001)
-        i = f.astype(int)
-        w = f - i
-        out = self._tab[:, i] * (1 - w) + self._tab[:, i + 1] * w
-        if self.closed:
-            out[2] += self._winding * laps
-        return out
-
-    def pose(self, s: float) -> tuple[float, float, float, float]:
-        """(x, y, theta, kappa) at one arc length."""
-        v = self(s)[:, 0]
-        return float(v[0]), float(v[1]), float(v[2]), float(v[3])
 
 
 SXFn = Callable[..., ca.SX]
@@ -467,8 +452,7 @@ class MPCSolver:
         return np.broadcast_to(b, (self.ocp.N, nu)).copy()
 
     def _jit_opts(self) -> dict:
-        return {"jit": True, "compiler": "shell",
-                "jit_options": {"flags": list(self.config.jit_flags), "verbose": False}}
+        return jit_options(self.config.jit_flags)
 
     def _make_solver(self) -> ca.Function:
         use_jit = self.config.jit and jit_available()
@@ -495,15 +479,8 @@ class MPCSolver:
             if c.hessian == "gauss-newton":  # ipopt takes the upper triangle only
                 opts["hess_lag"] = self._gn_hessian(use_jit, upper=True)
             return ca.nlpsol(f"{self.ocp.name}_ipopt", "ipopt", nlp, opts)
-        qp_opts: dict = {}
-        if c.qp_solver == "qrqp":
-            qp_opts = {"print_iter": False, "print_header": False, "print_info": False,
-                       "error_on_fail": False}
-        elif c.qp_solver == "osqp":
-            qp_opts = {"osqp": {"verbose": False, "eps_abs": 1e-8, "eps_rel": 1e-8, "polish": True},
-                       "warm_start_primal": True, "error_on_fail": False}
-        else:
-            qp_opts = {"printLevel": "none", "sparse": True, "error_on_fail": False}
+        extra = {"osqp": {"warm_start_primal": True}, "qpoases": {"sparse": True}}.get(c.qp_solver, {})
+        qp_opts = qp_options(c.qp_solver, **extra)
         opts.update({
             "qpsol": c.qp_solver,
             "qpsol_options": qp_opts,

@@ -30,6 +30,7 @@ import numpy as np
 
 __all__ = [
     "Path",
+    "PathTable",
     "eight_curve",
     "lemniscate",
     "ellipse",
@@ -114,6 +115,7 @@ class Path:
         if self.closed and np.hypot(*(p1 - p0)) > 1e-6 * max(1.0, self.length):
             raise ValueError(f"path {curve.name!r} is declared closed but its ends differ")
         self._cas = None
+        self._tables: dict[float, PathTable] = {}
 
     # -- derivatives of the parametric curve (5-point stencils) -------------------
     def _d1(self, phi: np.ndarray) -> np.ndarray:
@@ -267,6 +269,34 @@ class Path:
                 break
         return s
 
+    def project(self, p, s_guess: float | None = None, window: float = 1.0,
+                resolution: float = 0.005) -> float:
+        """Arc length of the point of the path nearest to the position p (the
+        projection of a pose onto the path, e.g. the start of a virtual vehicle).
+
+        Without ``s_guess`` the whole path is searched (a grid of 2 cm, at least 200
+        points, refined by :meth:`nearest`). With ``s_guess`` only s_guess +- ``window``
+        is searched, so successive projections stay continuous along a self-crossing
+        curve (the lemniscate (5.9) and the eight curve (4.14) cross themselves) instead
+        of jumping to the other branch at the crossing. The result is not wrapped.
+        """
+        p = np.asarray(p, dtype=float).reshape(-1)[:2]
+        if s_guess is not None:
+            return self.nearest(p, float(s_guess), window=window, resolution=resolution)
+        n = max(200, int(self.length / 0.02))
+        s = np.linspace(0.0, self.length, n)
+        d = self.pos(s) - p
+        s0 = float(s[np.argmin(np.einsum("ij,ij->i", d, d))])
+        return self.nearest(p, s0, window=self.length / n * 2, resolution=resolution)
+
+    def table(self, step: float = 1e-3) -> "PathTable":
+        """The :class:`PathTable` of this path on a grid of ``step`` metres (built once
+        per step size and shared by every controller using this path object)."""
+        key = float(step)
+        if key not in self._tables:
+            self._tables[key] = PathTable(self, step)
+        return self._tables[key]
+
     # -- CasADi -------------------------------------------------------------------
     def casadi(self, grid_step: float = 0.01):
         """CasADi functions ``x, y, theta, kappa`` of a (symbolic) arc length.
@@ -304,6 +334,94 @@ class Path:
     def __repr__(self) -> str:
         kind = "closed" if self.closed else "open"
         return f"Path({self.name!r}, {kind}, length={self.length:.4f} m)"
+
+
+class PathTable:
+    """One tabulated path: fast x, y, theta, kappa and dkappa/ds at many arc lengths.
+
+    Solvers and horizons evaluate the geometry at N+1 arc lengths every control step;
+    :class:`Path` evaluates the parametric curve with finite-difference stencils
+    (accurate but about 1 ms per call), so the geometry is tabulated once here on a
+    uniform grid of ``step`` metres (default 1 mm: linear-interpolation errors below
+    1e-6 m and 1e-4 1/m on the published paths) and looked up by linear interpolation.
+    Closed paths wrap (theta gains 2 pi per lap times the winding number); open paths
+    are tabulated on [-length, 2 length] including their straight extensions and
+    clamped beyond.
+
+    Besides the (5, n) look-up ``table(s)`` it offers the :class:`Path` methods that
+    geometry code needs (``pos``, ``theta``, ``kappa``, ``dkappa``, ``frame``), so
+    offset curves (Appendix A) and the controllers' references can be served from the
+    table instead of the curve. Build it with :meth:`Path.table` to share it.
+    """
+
+    def __init__(self, path: Path, step: float = 1e-3) -> None:
+        if not step > 0:
+            raise ValueError(f"step = {step!r} is not allowed; must be > 0 [m]")
+        self.path = path
+        self.name = path.name
+        self.closed = bool(path.closed)
+        self.length = float(path.length)
+        self.winding = getattr(path, "winding", 0)
+        lo, hi = (0.0, self.length) if self.closed else (-self.length, 2 * self.length)
+        n = int(math.ceil((hi - lo) / step)) + 1
+        grid = np.linspace(lo, hi, n)
+        x, y, th, k = path.frame(grid)
+        dk = np.atleast_1d(path.dkappa(grid))
+        self._lo, self._h, self._n = lo, (hi - lo) / (n - 1), n
+        self._tab = np.stack([x, y, th, k, dk])
+        self._winding = 2 * math.pi * self.winding
+
+    def __call__(self, s) -> np.ndarray:
+        """(5, n) rows x, y, theta, kappa, dkappa at arc lengths s (n,)."""
+        s = np.atleast_1d(np.asarray(s, float))
+        laps = np.zeros_like(s)
+        if self.closed:
+            laps = np.floor(s / self.length)
+            s = s - laps * self.length
+        f = np.clip((s - self._lo) / self._h, 0.0, self._n - 1.000001)
+        i = f.astype(int)
+        w = f - i
+        out = self._tab[:, i] * (1 - w) + self._tab[:, i + 1] * w
+        if self.closed:
+            out[2] += self._winding * laps
+        return out
+
+    def pose(self, s: float) -> tuple[float, float, float, float]:
+        """(x, y, theta, kappa) at one arc length."""
+        v = self(s)[:, 0]
+        return float(v[0]), float(v[1]), float(v[2]), float(v[3])
+
+    def wrap(self, s):
+        """Map s into [0, length) for closed paths; identity for open paths."""
+        return self.path.wrap(s)
+
+    def pos(self, s) -> np.ndarray:
+        """Position, shaped like s plus a last axis of 2."""
+        g = self(s)
+        return np.stack([g[0], g[1]], axis=-1).reshape(np.shape(s) + (2,))
+
+    def theta(self, s):
+        """Tangent angle, continuous in s (also across laps), shaped like s."""
+        return self(s)[2].reshape(np.shape(s))
+
+    def kappa(self, s):
+        """Signed curvature, shaped like s."""
+        return self(s)[3].reshape(np.shape(s))
+
+    def dkappa(self, s):
+        """d kappa / d s, shaped like s."""
+        return self(s)[4].reshape(np.shape(s))
+
+    def frame(self, s):
+        """(x, y, theta, kappa) at s, each shaped like s (floats for a scalar s)."""
+        g = self(s)
+        if np.ndim(s) == 0:
+            return float(g[0, 0]), float(g[1, 0]), float(g[2, 0]), float(g[3, 0])
+        shape = np.shape(s)
+        return tuple(g[i].reshape(shape) for i in range(4))
+
+    def __repr__(self) -> str:
+        return f"PathTable({self.name!r}, step={self._h:.2e} m)"
 
 
 # -- curve constructors ------------------------------------------------------------

@@ -21,9 +21,9 @@ from typing import Sequence
 import numpy as np
 
 from copath.config import from_table, require
-from copath.paths import Path, wrap_to_pi
+from copath.paths import wrap_to_pi
 
-from copath.control import controller, Observation, Outgoing, PeerMessage, RobotContext, StepResult
+from copath.control import controller, LatestMessages, Observation, Outgoing, PeerMessage, RobotContext, StepResult
 
 __all__ = [
     "ConsensusGains",
@@ -33,9 +33,13 @@ __all__ = [
     "tracking_errors",
     "tracking_law",
     "consensus_acceleration",
-    "project_onto_path",
+    "MESSAGE_KIND",
     "build",
 ]
+
+
+MESSAGE_KIND = "coord_state"
+"""Kind of the coordination-state broadcast (s_i, sdot_i, s_di) of (5.42)."""
 
 
 @dataclass(frozen=True)
@@ -181,15 +185,6 @@ def consensus_acceleration(
     return acc
 
 
-def project_onto_path(path: Path, p) -> float:
-    """Arc length of the point of ``path`` nearest to ``p`` (global search)."""
-    n = max(200, int(path.length / 0.02))
-    s = np.linspace(0.0, path.length, n)
-    d = path.pos(s) - np.asarray(p, dtype=float)[:2]
-    s0 = float(s[np.argmin(np.einsum("ij,ij->i", d, d))])
-    return path.nearest(np.asarray(p, dtype=float)[:2], s0, window=path.length / n * 2)
-
-
 class ConsensusController:
     """One robot of the Sec. 5.5 team: path following + consensus on s (Theorem 8)."""
 
@@ -200,15 +195,15 @@ class ConsensusController:
         self.model = ctx.model
         self.s: float | None = cfg.s0
         self.sdot = cfg.v0
-        self._nbrs: dict[str, tuple[float, float, float, float]] = {}  # name -> (s_d, s, sdot, stamp)
+        self.inbox = LatestMessages(kinds=(MESSAGE_KIND,))
 
     def _neighbour_states(self, t: float, xi: float) -> list[NeighbourState]:
         out = []
         period = self.path.length if self.path.closed else 0.0
-        for s_d, s, sdot, stamp in self._nbrs.values():
-            age = t - stamp
-            if age > self.cfg.stale_after_s:
-                continue
+        for got in self.inbox.fresh(MESSAGE_KIND, t, self.cfg.stale_after_s).values():
+            p = got.payload
+            s_d, s, sdot = float(p["s_d"]), float(p["s"]), float(p["sdot"])
+            age = got.since_stamp(t)
             xi_j = (s + sdot * age if self.cfg.extrapolate else s) - s_d
             if period:  # on a shared closed path, a lap apart is the same place
                 xi_j += period * round((xi - xi_j) / period)
@@ -217,14 +212,9 @@ class ConsensusController:
 
     def step(self, obs: Observation, inbox: Sequence[PeerMessage]) -> StepResult:
         cfg = self.cfg
-        for m in inbox:
-            if m.kind == "coord_state":
-                prev = self._nbrs.get(m.sender)
-                if prev is None or m.stamp >= prev[3]:
-                    p = m.payload
-                    self._nbrs[m.sender] = (float(p["s_d"]), float(p["s"]), float(p["sdot"]), m.stamp)
+        self.inbox.update(inbox, obs.t)
         if self.s is None:
-            self.s = project_onto_path(self.path, obs.pose)
+            self.s = self.path.project(obs.pose[:2])
         s, sdot = self.s, self.sdot
         x_d, y_d, th_d, kappa = self.path.frame(s)
         errors = tracking_errors(obs.pose, (x_d, y_d, th_d))
@@ -236,7 +226,7 @@ class ConsensusController:
         # integrate the virtual vehicle at the control rate (SPEC 2(f) note 3)
         self.sdot = min(max(sdot + acc * obs.dt, 0.0), cfg.sdot_max)
         self.s = s + self.sdot * obs.dt
-        msg = Outgoing("coord_state", {"s": s, "sdot": sdot, "s_d": cfg.s_d})
+        msg = Outgoing(MESSAGE_KIND, {"s": s, "sdot": sdot, "s_d": cfg.s_d})
         telemetry = {
             "ref": [x_d, y_d, th_d],
             "s": s,

@@ -46,11 +46,10 @@ import numpy as np
 
 from copath.config import ConfigError, from_table, require
 from copath.morphing import Morphing, morphing
-from copath.mpc import OCP, MPCSolver, PathTable, SolverFields, weighted
+from copath.mpc import OCP, MPCSolver, SolverFields, weighted
 from copath.paths import Path, wrap_to_pi
 
-from copath.control import controller, Observation, Outgoing, PeerMessage, RobotContext, StepResult
-from .consensus import project_onto_path
+from copath.control import controller, LatestMessages, Observation, Outgoing, PeerMessage, RobotContext, StepResult
 
 __all__ = [
     "DMPCConfig",
@@ -62,6 +61,9 @@ __all__ = [
 ]
 
 logger = logging.getLogger(__name__)
+
+MESSAGE_KIND = "assumed_traj"
+"""Kind of the assumed-trajectory message of Algorithm 5.1 (step 2)."""
 
 NX, NU = 6, 4
 IX, IY, IPHI, ITH, IETA, IS = range(NX)
@@ -176,6 +178,13 @@ class AssumedTrajectory:
 
     def scaled(self, factor: float) -> "AssumedTrajectory":
         return AssumedTrajectory(self.t0, self.dt, np.asarray(self.values, dtype=float) * factor)
+
+
+def _assumed_from(payload: Mapping[str, Any]) -> AssumedTrajectory:
+    """The assumed trajectory of an ``assumed_traj`` payload in base-path coordinates
+    psi (5.29) (raises KeyError, TypeError or ValueError on a bad payload)."""
+    traj = AssumedTrajectory(float(payload["t0"]), float(payload["dt"]), np.asarray(payload["s_hat"], dtype=float))
+    return traj.scaled(float(payload.get("psi_scale", 1.0)))
 
 
 def terminal_rollout(x_N, kappa: float, q: float, u_o: float, k_terminal, duration: float,
@@ -328,7 +337,7 @@ class DMPCController:
         self.nbrs = tuple(ctx.neighbours)
         self.psi_d = cfg.offset(ctx.name)
         self.dt = ctx.dt
-        self.table = PathTable(self.path)
+        self.table = self.path.table()
         self.mpc = MPCSolver(
             _ocp(cfg, len(self.nbrs), self.dt, self.q, self.morph.scale, ctx.model.M, ctx.model.qdot_max),
             cfg.solver_config(),
@@ -336,6 +345,7 @@ class DMPCController:
         self.s: float | None = cfg.s0
         self.theta_t: float | None = None
         self.u_R = 0.0
+        self.inbox = LatestMessages(kinds=(MESSAGE_KIND,), senders=self.nbrs, accept=self._valid)
         self.neighbour_traj: dict[str, tuple[float, AssumedTrajectory]] = {}  # name -> (stamp, psi traj)
         self.own_assumed: AssumedTrajectory | None = None
         self._last: tuple[float, np.ndarray] | None = None  # (t_k, predicted X) of the last solve
@@ -345,20 +355,18 @@ class DMPCController:
     def _u_r(self, kap) -> Any:
         return self.u_o * (1.0 - kap * self.q)  # (5.11)
 
-    def _receive(self, inbox: Sequence[PeerMessage]) -> None:
-        for m in inbox:
-            if m.kind != "assumed_traj" or m.sender not in self.nbrs:
-                continue
-            prev = self.neighbour_traj.get(m.sender)
-            if prev is not None and m.stamp < prev[0]:
-                continue  # out of order: keep the newest
-            p = m.payload
-            try:
-                traj = AssumedTrajectory(float(p["t0"]), float(p["dt"]), np.asarray(p["s_hat"], dtype=float))
-            except (KeyError, TypeError, ValueError) as exc:
-                logger.warning("%s: bad assumed_traj from %s: %s", self.ctx.name, m.sender, exc)
-                continue
-            self.neighbour_traj[m.sender] = (m.stamp, traj.scaled(float(p.get("psi_scale", 1.0))))
+    def _valid(self, m: PeerMessage) -> bool:
+        """An ``assumed_traj`` payload that can be used (a bad one is logged and ignored)."""
+        try:
+            _assumed_from(m.payload)
+        except (KeyError, TypeError, ValueError) as exc:
+            logger.warning("%s: bad %s from %s: %s", self.ctx.name, MESSAGE_KIND, m.sender, exc)
+            return False
+        return True
+
+    def _receive(self, inbox: Sequence[PeerMessage], t: float) -> None:
+        for got in self.inbox.update(inbox, t):
+            self.neighbour_traj[got.sender] = (got.stamp, _assumed_from(got.payload))
 
     def _wrap_near(self, value: np.ndarray, ref: np.ndarray) -> np.ndarray:
         if self.psi_period <= 0:
@@ -385,10 +393,10 @@ class DMPCController:
     # -- step ------------------------------------------------------------------------
     def step(self, obs: Observation, inbox: Sequence[PeerMessage]) -> StepResult:
         cfg, N, dt = self.cfg, self.cfg.horizon, self.dt
-        self._receive(inbox)
+        self._receive(inbox, obs.t)
         pose = np.asarray(obs.pose, dtype=float)
         if self.s is None:
-            self.s = project_onto_path(self.path, pose)
+            self.s = self.path.project(pose[:2])
         if self.theta_t is None:
             self.theta_t = float(self.table(self.s)[2, 0])
         if self._last is not None:
@@ -462,7 +470,7 @@ class DMPCController:
             self._last = (obs.t, X)
         self.k += 1
         psi = self.morph.psi(s)
-        msg = Outgoing("assumed_traj", {"t0": float(obs.t), "dt": float(dt),
+        msg = Outgoing(MESSAGE_KIND, {"t0": float(obs.t), "dt": float(dt),
                                         "s_hat": [float(v) for v in assumed.values],
                                         "psi_scale": float(self.morph.scale)})
         telemetry = {

@@ -32,13 +32,12 @@ import numpy as np
 from copath.config import from_table, require
 from copath.offsets import Quintic, offset_state
 
-from copath.control import controller, Observation, Outgoing, PeerMessage, RobotContext, StepResult
+from copath.control import controller, LatestMessages, Observation, Outgoing, PeerMessage, RobotContext, StepResult
 from .consensus import (
     ConsensusConfig,
     ConsensusGains,
     NeighbourState,
     consensus_acceleration,
-    project_onto_path,
     tracking_errors,
     tracking_law,
 )
@@ -114,9 +113,7 @@ class FormationSwitchingController:
         self.xidot = cfg.v0
         self.formation = 0
         self.transitions: list[tuple[Quintic, Quintic]] = []
-        self._nbrs: dict[str, tuple[float, float, float]] = {}  # name -> (xi, xidot, stamp)
-        self._pos: dict[str, tuple[np.ndarray, float]] = {}  # name -> (position, stamp)
-        self._index: dict[str, int] = {}
+        self.inbox = LatestMessages(kinds=(MESSAGE_KIND,))
         self._arriving = False
 
     # -- slot geometry -----------------------------------------------------------------
@@ -147,17 +144,17 @@ class FormationSwitchingController:
     # -- step -----------------------------------------------------------------------------
     def _neighbours(self, t: float, xi: float) -> list[NeighbourState]:
         out = []
-        for x, xd, stamp in self._nbrs.values():
-            age = t - stamp
-            if age <= self.cfg.stale_after_s:
-                out.append(NeighbourState(xi=x + xd * age, sdot=xd))
+        for got in self.inbox.fresh(MESSAGE_KIND, t, self.cfg.stale_after_s).values():
+            x, xd = float(got.payload["xi"]), float(got.payload["xidot"])
+            out.append(NeighbourState(xi=x + xd * got.since_stamp(t), sdot=xd))
         return out
 
     def _shape(self, p: np.ndarray, ref: np.ndarray, t: float) -> np.ndarray:
         """Reference position pushed away from the other robots, (6.12)-(6.15), plus the
         along-track share that orders robots meeting side by side."""
         cfg = self.cfg
-        others = {n: q for n, (q, stamp) in self._pos.items() if t - stamp <= cfg.stale_after_s}
+        fresh = self.inbox.fresh(MESSAGE_KIND, t, cfg.stale_after_s)
+        others = {n: np.asarray(got.position, dtype=float) for n, got in fresh.items() if got.position is not None}
         target = repulsive_shift(p, ref[:2], list(others.values()), self.gains)
         if cfg.along > 0:
             tang = np.array([math.cos(ref[2]), math.sin(ref[2])])
@@ -167,23 +164,16 @@ class FormationSwitchingController:
                 if F <= 0.0:
                     continue
                 ahead = float((p - q) @ tang)
-                sign = 1.0 if ahead > 1e-3 or (abs(ahead) <= 1e-3 and self.index > self._index.get(n, -1)) else -1.0
+                index = int(fresh[n].payload.get("index", 0))
+                sign = 1.0 if ahead > 1e-3 or (abs(ahead) <= 1e-3 and self.index > index) else -1.0
                 target = target + cfg.along * F * sign * tang
         return target
 
     def step(self, obs: Observation, inbox: Sequence[PeerMessage]) -> StepResult:
         cfg = self.cfg
-        for m in inbox:
-            if m.kind != MESSAGE_KIND:
-                continue
-            prev = self._nbrs.get(m.sender)
-            if prev is None or m.stamp >= prev[2]:
-                self._nbrs[m.sender] = (float(m.payload["xi"]), float(m.payload["xidot"]), m.stamp)
-                if m.position is not None:
-                    self._pos[m.sender] = (np.asarray(m.position, dtype=float), m.stamp)
-                self._index[m.sender] = int(m.payload.get("index", 0))
+        self.inbox.update(inbox, obs.t)
         if self.s is None:
-            self.s = project_onto_path(self.path, obs.pose)
+            self.s = self.path.project(obs.pose[:2])
         s = self.s
         self._schedule(s)
         sd, dsd, q, dq, ddq, moving = self._slot(s)

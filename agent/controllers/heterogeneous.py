@@ -35,11 +35,11 @@ import numpy as np
 
 from copath.config import ConfigError, from_table, require
 from copath.models import integrate_body_velocity
-from copath.paths import wrap_to_pi
+from copath.paths import PathTable, wrap_to_pi
 
-from copath.control import controller, Observation, Outgoing, PeerMessage, RobotContext, StepResult
+from copath.control import controller, LatestMessages, Observation, Outgoing, PeerMessage, RobotContext, StepResult
 from .consensus import tracking_errors, tracking_law
-from .leader_following import PathLeader, TabulatedPath
+from .leader_following import PathLeader
 from .omni_nmpc import OmniPFConfig
 
 __all__ = [
@@ -54,6 +54,11 @@ __all__ = [
 ]
 
 logger = logging.getLogger(__name__)
+
+REPORT_KIND = "hetero_report"
+"""A follower's pose estimate sent to the leader (camera fix plus compass heading)."""
+COMMAND_KIND = "hetero_cmd"
+"""The leader's velocity command for one follower."""
 
 
 def brake_factor(p, direction, others, stop: Sequence[float], slow: float,
@@ -97,13 +102,13 @@ def brake_factor(p, direction, others, stop: Sequence[float], slow: float,
     return float(frac[k]), 1.0 if cross > 1e-9 else -1.0
 
 
-def offset_reference(geometry: TabulatedPath, s: float, q: float, sdot: float) -> tuple[np.ndarray, float, float]:
+def offset_reference(geometry: PathTable, s: float, q: float, sdot: float) -> tuple[np.ndarray, float, float]:
     """Reference pose, speed and curvature of the point at s with constant offset q.
 
     (5.10): (x_p - q sin theta_p, y_p + q cos theta_p, theta_p); (5.11)-(5.12):
     v_d = sdot (1 - kappa q), kappa_i = kappa / (1 - kappa q). Raises ValueError at a cusp.
     """
-    g = geometry.table(s)[:, 0]
+    g = geometry(s)[:, 0]
     x, y, th, k = (float(v) for v in g[:4])
     one = 1.0 - k * q
     if one <= 0.05:
@@ -198,22 +203,20 @@ class HeteroLeader:
     def __init__(self, ctx: RobotContext, cfg: HeteroLeaderConfig) -> None:
         self.ctx, self.cfg = ctx, cfg
         self.leader = PathLeader(ctx, cfg, "hetero_leader")
-        self.geometry = TabulatedPath(self.leader.path)
+        self.geometry = self.leader.path.table()
         self.radius = ctx.model.radius
         self.followers: dict[str, _FollowerState] = {}
         for name, (s_d, q) in cfg.followers.items():
             require(name in ctx.neighbours, f"robots.{ctx.name}.neighbours", list(ctx.neighbours),
                     f"the leader exchanges messages with its neighbours; add follower {name!r}")
             self.followers[name] = _FollowerState(float(s_d), float(q), cfg.follower_radius)
+        self.inbox = LatestMessages(kinds=(REPORT_KIND,), senders=tuple(self.followers))
 
     def _receive(self, t: float, inbox: Sequence[PeerMessage]) -> None:
-        for m in inbox:
-            st = self.followers.get(m.sender)
-            if m.kind != "hetero_report" or st is None or m.stamp < st.stamp:
-                continue
-            p = m.payload
+        for got in self.inbox.update(inbox, t):
+            st, p = self.followers[got.sender], got.payload
             st.pose = np.array([float(p["x"]), float(p["y"]), float(p["heading"])])
-            st.stamp, st.age, st.t_receipt = m.stamp, m.age, t
+            st.stamp, st.age, st.t_receipt = got.stamp, got.message.age, got.received_at
 
     def step(self, obs: Observation, inbox: Sequence[PeerMessage]) -> StepResult:
         cfg = self.cfg
@@ -250,7 +253,7 @@ class HeteroLeader:
             self._avoid(obs, body, commands)
         for name, (v, w, ref, xi, _) in commands.items():
             self.followers[name].last_cmd = (v, w)
-            messages.append(Outgoing("hetero_cmd", {"v": float(v), "omega": float(w),
+            messages.append(Outgoing(COMMAND_KIND, {"v": float(v), "omega": float(w),
                                                     "ref": [float(ref[0]), float(ref[1]), float(wrap_to_pi(ref[2]))],
                                                     "xi": float(xi)}, to=(name,)))
         tel = self.leader.telemetry(sol, cfg.u_R)
@@ -290,19 +293,16 @@ class HeteroFollower:
         require(cfg.leader in ctx.neighbours, f"robots.{ctx.name}.controller.leader", cfg.leader,
                 f"must name a neighbour of {ctx.name!r}: {', '.join(ctx.neighbours) or '(none)'}")
         self.ctx, self.cfg = ctx, cfg
-        self.cmd: dict[str, Any] | None = None
-        self._stamp = -math.inf
-        self._age = 0.0
-        self._t_receipt = 0.0
+        self.inbox = LatestMessages(kinds=(COMMAND_KIND,), senders=(cfg.leader,))
 
     def step(self, obs: Observation, inbox: Sequence[PeerMessage]) -> StepResult:
-        for m in inbox:
-            if m.kind == "hetero_cmd" and m.sender == self.cfg.leader and m.stamp >= self._stamp:
-                self.cmd, self._stamp, self._age, self._t_receipt = dict(m.payload), m.stamp, m.age, obs.t
-        report = Outgoing("hetero_report", {"x": float(obs.pose[0]), "y": float(obs.pose[1]),
+        self.inbox.update(inbox, obs.t)
+        got = self.inbox.get(self.cfg.leader, COMMAND_KIND)
+        self.cmd = dict(got.payload) if got is not None else None
+        report = Outgoing(REPORT_KIND, {"x": float(obs.pose[0]), "y": float(obs.pose[1]),
                                             "heading": float(obs.pose[2])},
                           to=(self.cfg.leader,))
-        age = self._age + (obs.t - self._t_receipt)
+        age = got.age(obs.t) if got is not None else 0.0
         tel: dict[str, Any] = {"command_age": float(age) if self.cmd is not None else None}
         if self.cmd is None or age > self.cfg.cmd_timeout_s:
             return StepResult(command=np.zeros(2), messages=[report], telemetry=tel)

@@ -28,16 +28,14 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from copath.config import ConfigError, from_table, require
-from copath.mpc import PathTable
 from copath.offsets import Quintic, offset_state
-from copath.paths import Path, wrap_to_pi
+from copath.paths import Path, PathTable, wrap_to_pi
 
-from copath.control import controller, Observation, Outgoing, PeerMessage, RobotContext, StepResult
+from copath.control import controller, LatestMessages, Observation, Outgoing, PeerMessage, RobotContext, StepResult
 from .omni_nmpc import OmniPathFollowingNMPC, OmniPFConfig, OmniTrackingNMPC, OmniNMPCFields, check_gain_conditions
 
 __all__ = [
     "PathLeader",
-    "TabulatedPath",
     "LeaderConfig",
     "FollowerConfig",
     "LeaderController",
@@ -52,6 +50,16 @@ __all__ = [
 ]
 
 logger = logging.getLogger(__name__)
+
+PLAN_KIND = "leader_plan"
+"""The leader's plan (s_l, sdot_pred, delta_l) sent after each solve (Sec. 5.3.3)."""
+STATUS_KIND = "follower_status"
+"""A follower's tracking error for the formation feedback (beyond the text)."""
+
+
+def _usable_plan(m: PeerMessage) -> bool:
+    """A ``leader_plan`` with at least one planned speed and a positive sampling time."""
+    return len(m.payload["sdot_pred"]) > 0 and float(m.payload["delta_l"]) > 0
 
 
 # -- leader information at the follower: age of information and fill-in ---------------
@@ -221,30 +229,7 @@ class FollowerReference:
         return float(self.s_i[0] + (d[0] * math.cos(th) + d[1] * math.sin(th)) / self.H[0])
 
 
-class TabulatedPath:
-    """The :class:`copath.paths.Path` methods that offset curves need, served from a
-    :class:`copath.mpc.PathTable` (about 50x faster than evaluating the curve)."""
-
-    def __init__(self, path: Path) -> None:
-        self.path = path
-        self.table = PathTable(path)
-        self.length, self.closed = path.length, path.closed
-
-    def pos(self, s):
-        g = self.table(s)
-        return np.stack([g[0], g[1]], axis=-1).reshape(np.shape(s) + (2,))
-
-    def theta(self, s):
-        return self.table(s)[2].reshape(np.shape(s))
-
-    def kappa(self, s):
-        return self.table(s)[3].reshape(np.shape(s))
-
-    def dkappa(self, s):
-        return self.table(s)[4].reshape(np.shape(s))
-
-
-def follower_reference(path: Path | TabulatedPath, schedule: FormationSchedule, robot: str, s_c, sdot_c) -> FollowerReference:
+def follower_reference(path: Path | PathTable, schedule: FormationSchedule, robot: str, s_c, sdot_c) -> FollowerReference:
     """Reference poses and velocities of follower ``robot`` for leader progress s_c, sdot_c.
 
     s_i = s_c + p_i(s_c); o(s_i) = r(s_i) + q_i n(s_i) with heading theta_p + atan2(q', 1 - k q)
@@ -377,9 +362,8 @@ class FollowerConfig(_FormationFields, OmniNMPCFields):
 def _start_coordinate(path: Path, p) -> float:
     """Path coordinate of the point nearest p; on a closed path in [-L/2, L/2) so that a
     team starting near the path's origin has s near 0 (the schedule's coordinate)."""
-    half = 0.5 * path.length
-    s = path.nearest(p, half, window=half + 0.01, resolution=0.01)
-    return s - path.length if path.closed and s >= half else s
+    s = path.wrap(path.project(p))
+    return s - path.length if path.closed and s >= 0.5 * path.length else s
 
 
 class PathLeader:
@@ -440,14 +424,15 @@ class LeaderController:
                     f"the leader broadcasts to its neighbours; add follower {f!r}")
         self.leader = PathLeader(ctx, cfg, "leader_nmpc")
         self.factor = 1.0
-        self._status: dict[str, tuple[float, float]] = {}  # follower -> (error, stamp)
+        self.inbox = LatestMessages(kinds=(STATUS_KIND,), senders=self.followers)
 
     def _slowdown(self, t: float, dt: float) -> float:
         """Formation feedback: fraction of u_R from the largest fresh follower error."""
         cfg = self.cfg
         if not cfg.formation_feedback:
             return 1.0
-        errs = [e for e, stamp in self._status.values() if t - stamp <= cfg.feedback_stale_s]
+        errs = [float(got.payload["tracking_error"])
+                for got in self.inbox.fresh(STATUS_KIND, t, cfg.feedback_stale_s).values()]
         e = max(errs, default=0.0)
         x = (e - cfg.feedback_error_low) / (cfg.feedback_error_high - cfg.feedback_error_low)
         target = 1.0 - (1.0 - cfg.feedback_min_factor) * min(max(x, 0.0), 1.0)
@@ -456,11 +441,7 @@ class LeaderController:
         return self.factor
 
     def step(self, obs: Observation, inbox: Sequence[PeerMessage]) -> StepResult:
-        for m in inbox:
-            if m.kind == "follower_status" and m.sender in self.followers:
-                prev = self._status.get(m.sender)
-                if prev is None or m.stamp >= prev[1]:
-                    self._status[m.sender] = (float(m.payload["tracking_error"]), m.stamp)
+        self.inbox.update(inbox, obs.t)
         factor = self._slowdown(obs.t, obs.dt)
         u_R = self.cfg.u_R * factor
         sol = self.leader.solve(obs, u_R)
@@ -468,7 +449,7 @@ class LeaderController:
                 "delta_l": float(self.leader.nmpc.dt), "slowdown": float(factor)}
         tel = self.leader.telemetry(sol, u_R)
         tel["slowdown"] = float(factor)
-        return StepResult(command=sol.body, messages=[Outgoing("leader_plan", plan, to=tuple(self.followers))],
+        return StepResult(command=sol.body, messages=[Outgoing(PLAN_KIND, plan, to=tuple(self.followers))],
                           telemetry=tel)
 
 
@@ -495,20 +476,15 @@ class FollowerController:
             check_gain_conditions(cfg.Q, cfg.R, cfg.gains, where=where)
         self.nmpc = OmniTrackingNMPC(ctx.model, cfg.horizon, ctx.dt, cfg.Q, cfg.R, cfg.gains,
                                      terminal=cfg.terminal, solver=cfg.solver_config(), name=f"{ctx.name}_follower")
-        self.geometry = TabulatedPath(self.path)
+        self.geometry = self.path.table()
+        self.inbox = LatestMessages(kinds=(PLAN_KIND,), senders=(cfg.leader,), accept=_usable_plan)
         self.plan: LeaderPlan | None = None
 
     def _receive(self, t: float, inbox: Sequence[PeerMessage]) -> None:
-        for m in inbox:
-            if m.kind != "leader_plan" or m.sender != self.cfg.leader:
-                continue
-            if self.plan is not None and m.stamp <= self.plan.stamp:
-                continue  # late duplicate or out of order: keep the newest
-            p = m.payload
-            sd = tuple(float(v) for v in p["sdot_pred"])
-            if not sd or float(p["delta_l"]) <= 0:
-                continue
-            self.plan = LeaderPlan(float(p["s_l"]), sd, float(p["delta_l"]), m.stamp, m.age, t)
+        for got in self.inbox.update(inbox, t):
+            p = got.payload
+            self.plan = LeaderPlan(float(p["s_l"]), tuple(float(v) for v in p["sdot_pred"]), float(p["delta_l"]),
+                                   got.stamp, got.message.age, got.received_at)
 
     def step(self, obs: Observation, inbox: Sequence[PeerMessage]) -> StepResult:
         cfg = self.cfg
@@ -525,7 +501,7 @@ class FollowerController:
         sol = self.nmpc.solve(obs.pose, rows)
         err = float(np.hypot(*(np.asarray(obs.pose[:2]) - ref.pose[0, :2])))
         s_own = ref.progress_of(obs.pose)
-        messages = [Outgoing("follower_status", {"tracking_error": err}, to=(cfg.leader,))] \
+        messages = [Outgoing(STATUS_KIND, {"tracking_error": err}, to=(cfg.leader,))] \
             if cfg.formation_feedback else []
         tel = {
             "ref": [float(ref.pose[0, 0]), float(ref.pose[0, 1]), float(wrap_to_pi(ref.pose[0, 2]))],

@@ -28,8 +28,8 @@ import casadi as ca
 import numpy as np
 
 from copath.config import ConfigError, from_table, require
-from copath.models import OmniModel, rotation_speed_limit
-from copath.mpc import PathTable, jit_available
+from copath.models import OmniModel
+from copath.mpc import jit_available, jit_options, qp_options
 from copath.paths import Path, wrap_to_pi
 
 from copath.control import controller, Observation, PeerMessage, RobotContext, StepResult
@@ -40,7 +40,6 @@ __all__ = [
     "linear_model",
     "condense",
     "profile_speed",
-    "omega_limit",
     "VelocityProfile",
     "LTVPathFollowingQP",
     "LTVConfig",
@@ -129,25 +128,22 @@ def condense(As: Sequence, B):
 # -- velocity profile --------------------------------------------------------------
 
 
-def omega_limit(u, qdot_max: float = 1.9, L_w: float = 0.195):
-    """omega_l(u) = (qdot_max - |u|) / L_w, the inverse of (4.18) (9.7436 - 5.1283 u)."""
-    return np.maximum(0.0, (qdot_max - np.abs(u)) / L_w)
-
-
 def profile_speed(kappa, u_R: float, u_max: float, mu: float, g: float, omega_b=0.0,
-                  qdot_max: float = 1.9, L_w: float = 0.195, heading: str = "fixed"):
+                  model: OmniModel | None = None, heading: str = "fixed"):
     """Forward-speed profile (4.25)-(4.27) at curvature kappa.
 
     u = min(u_max, u_d, sqrt(mu g / |kappa|)) with u_d = min(u_R, r(omega_b)) (4.25),
-    ambiguity #7. With ``heading = "tangent"`` the body turns with the path, omega_b =
-    kappa u, and u_d = min(u_R, qdot_max / (1 + L_w |kappa|)) solves u = r(kappa u).
+    ambiguity #7; r is the model's :meth:`~copath.models.OmniModel.max_speed` (default:
+    the published robot). With ``heading = "tangent"`` the body turns with the path,
+    omega_b = kappa u, and u_d = min(u_R, :meth:`~copath.models.OmniModel.max_tangent_speed`).
     """
+    model = model or OmniModel()
     k = np.abs(np.asarray(kappa, float))
     friction = np.sqrt(mu * g / np.maximum(k, 1e-12))
     if heading == "tangent":
-        u_d = np.minimum(u_R, qdot_max / (1.0 + L_w * k))
+        u_d = np.minimum(u_R, model.max_tangent_speed(k))
     else:
-        u_d = np.minimum(u_R, rotation_speed_limit(omega_b, qdot_max, L_w))
+        u_d = np.minimum(u_R, model.max_speed(omega_b))
     return np.minimum(np.minimum(u_max, u_d), friction)
 
 
@@ -159,7 +155,7 @@ class VelocityProfile:
     look-ahead distance", at least N steps), and the profile speeds there.
     """
 
-    def __init__(self, table: PathTable, speed_fn, step: float = 2e-3) -> None:
+    def __init__(self, table, speed_fn, step: float = 2e-3) -> None:
         self.closed, self.length = table.closed, table.length
         L = self.length
         lo, hi = (0.0, 3 * L) if self.closed else (-L, 2 * L)
@@ -223,23 +219,15 @@ class LTVPathFollowingQP:
         H = 2 * (ca.mtimes([S.T, ca.DM(Qbar), S]) + ca.DM(Rbar))  # (4.33)
         f = 2 * ca.mtimes([S.T, ca.DM(Qbar), G, xe])
         H = ca.densify(0.5 * (H + H.T))
-        opts = {}
-        if jit and jit_available():
-            opts = {"jit": True, "compiler": "shell", "jit_options": {"flags": ["-O2"], "verbose": False}}
+        opts = jit_options() if jit and jit_available() else {}
         try:
             self._condense = ca.Function(f"{name}_condense", [xe, kap, uR], [H, f], opts)
         except Exception as exc:  # compiler trouble: interpret instead
             logger.info("JIT of the LTV condensing failed, using the virtual machine: %s", exc)
             self._condense = ca.Function(f"{name}_condense", [xe, kap, uR], [H, f])
         nU = N * m
-        qp_opts: dict = {"error_on_fail": False}
-        if qp_solver == "qrqp":
-            qp_opts.update({"print_iter": False, "print_header": False, "print_info": False})
-        elif qp_solver == "osqp":
-            qp_opts.update({"osqp": {"verbose": False, "eps_abs": 1e-8, "eps_rel": 1e-8, "polish": True}})
-        elif qp_solver == "qpoases":
-            qp_opts.update({"printLevel": "none"})
-        self._qp = ca.conic(f"{name}_qp", qp_solver, {"h": ca.Sparsity.dense(nU, nU), "a": ca.Sparsity(0, nU)}, qp_opts)
+        self._qp = ca.conic(f"{name}_qp", qp_solver, {"h": ca.Sparsity.dense(nU, nU), "a": ca.Sparsity(0, nU)},
+                            qp_options(qp_solver))
         x_in, k_in, u_in = ca.MX.sym("xe", n), ca.MX.sym("kappa", N), ca.MX.sym("uR", N)
         lb, ub = ca.MX.sym("lb", nU), ca.MX.sym("ub", nU)
         Hm, fm = self._condense(x_in, k_in, u_in)
@@ -345,11 +333,10 @@ class LTVController:
             raise ConfigError(f"robots.{ctx.name}.model = {ctx.model.kind!r} is not allowed; ltv_mpc needs omni")
         self.cfg, self.model, self.Ts = cfg, ctx.model, float(ctx.dt)
         self.path: Path = ctx.own_path
-        self.table = PathTable(self.path)
-        m = ctx.model
+        self.table = self.path.table()
 
         def speed_fn(kappa):
-            return profile_speed(kappa, cfg.u_R, cfg.u_max, cfg.mu, cfg.g, 0.0, m.qdot_max, m.L_w, cfg.heading)
+            return profile_speed(kappa, cfg.u_R, cfg.u_max, cfg.mu, cfg.g, 0.0, ctx.model, cfg.heading)
 
         self.profile = VelocityProfile(self.table, speed_fn)
         self.qp = LTVPathFollowingQP(cfg.horizon, self.Ts, cfg.Q, cfg.R, cfg.qp_solver, cfg.jit,
@@ -371,7 +358,7 @@ class LTVController:
         lb[:, 1] = (-cfg.phi_max - kappa) * u
         ub[:, 1] = (cfg.phi_max - kappa) * u
         # |omega| <= omega_c = min(omega_l(u_R), omega_max); u_3 = omega - omega_b
-        omega_c = np.minimum(omega_limit(u, self.model.qdot_max, self.model.L_w), cfg.omega_max)
+        omega_c = np.minimum(self.model.max_rotation(u), cfg.omega_max)
         lb[:, 2] = -omega_c - omega_b
         ub[:, 2] = omega_c - omega_b
         return lb, ub
@@ -380,8 +367,7 @@ class LTVController:
         cfg, N, Ts = self.cfg, self.cfg.horizon, self.Ts
         pose = np.asarray(obs.pose, float)
         if self.s is None:
-            half = 0.5 * self.path.length
-            self.s = self.path.nearest(pose[:2], half, window=half + 0.01, resolution=0.01)
+            self.s = self.path.project(pose[:2])
         if self.theta_t is None:
             self.theta_t = self.table.pose(self.s)[2]
         if self._t_prev is not None:

@@ -36,7 +36,7 @@ import numpy as np
 
 from copath.config import ConfigError, from_table, require
 from copath.models import OmniModel
-from copath.mpc import OCP, MPCSolver, PathTable, SolveResult, SolverConfig, SolverFields, weighted
+from copath.mpc import OCP, MPCSolver, SolveResult, SolverConfig, SolverFields, weighted
 from copath.paths import Path, wrap_to_pi
 
 from copath.control import controller, Observation, PeerMessage, RobotContext, StepResult
@@ -230,7 +230,7 @@ class OmniPathFollowingNMPC:
     ) -> None:
         require(heading in ("tangent", "fixed"), "heading", heading, "allowed: tangent, fixed")
         self.path, self.model, self.N, self.dt = path, model, int(N), float(dt)
-        self.table = PathTable(path)
+        self.table = path.table()
         self.Q, self.R = np.asarray(Q, float), np.asarray(R, float)
         self.gains = np.asarray(gains, float)
         self.P = np.asarray(P, float)
@@ -356,11 +356,7 @@ class OmniPathFollowingNMPC:
         U = np.zeros((N, 4))
         for i in range(N):
             body = np.array([u_R * math.cos(psi), -u_R * math.sin(psi), k[i] * u_R])
-            q = self.M @ body
-            peak = np.max(np.abs(q))
-            if peak > self.model.qdot_max:
-                q *= self.model.qdot_max / peak
-            U[i, :3] = q
+            U[i, :3] = self.model.saturate_wheels(self.M @ body)
             U[i, 3] = u_R
         return X, U
 
@@ -487,9 +483,7 @@ class OmniTrackingNMPC:
         for i in range(N):
             xe = tt_errors(X[i], ref[i])
             body = np.array([ref[i, 3] * math.cos(xe[2]), ref[i, 3] * math.sin(xe[2]), ref[i, 4]])
-            q = self.M @ body
-            peak = np.max(np.abs(q))
-            U[i] = q * min(1.0, self.model.qdot_max / max(peak, 1e-12))
+            U[i] = self.model.saturate_wheels(self.M @ body)
         return X, U
 
 
@@ -596,12 +590,6 @@ class OmniPFConfig(OmniNMPCFields):
         require(self.heading in ("tangent", "fixed"), "heading", self.heading, "allowed: tangent, fixed")
 
 
-def _global_nearest(path: Path, p) -> float:
-    """Arc length of the path point nearest p over the whole path."""
-    half = 0.5 * path.length
-    return path.nearest(p, half, window=half + 0.01, resolution=0.01)
-
-
 class OmniPathFollowingController:
     """Sec. 4.2 path following as a controller (contract: ``agent/controllers/base.py``)."""
 
@@ -625,7 +613,7 @@ class OmniPathFollowingController:
 
     def step(self, obs: Observation, inbox: Sequence[PeerMessage]) -> StepResult:
         if self.s is None:
-            self.s = _global_nearest(self.path, obs.pose[:2])
+            self.s = self.path.project(obs.pose[:2])
         elif self._t_prev is not None:
             self.s += self._sdot_prev * max(0.0, obs.t - self._t_prev)
         sol = self.nmpc.solve(obs.pose, self.s, self.cfg.u_R)

@@ -31,7 +31,7 @@ import numpy as np
 
 from copath.config import ConfigError, from_table, require
 from copath.models import UnicycleModel
-from copath.mpc import OCP, MPCSolver, PathTable, SolveResult, SolverConfig, SolverFields, weighted
+from copath.mpc import OCP, MPCSolver, SolveResult, SolverConfig, SolverFields, weighted
 from copath.paths import Path, wrap_to_pi
 
 from copath.control import controller, Observation, PeerMessage, RobotContext, StepResult
@@ -434,7 +434,7 @@ class UnicycleNMPCController:
                                       f"(4.48) fails with margin {mi:.4g}")
         self.cfg, self.model, self.dt = cfg, ctx.model, float(ctx.dt)
         self.path: Path = ctx.own_path
-        self.table = PathTable(self.path)
+        self.table = self.path.table()
         self.radius = ctx.model.radius
         v_max = min(cfg.v_max, ctx.model.v_max)
         om_max = min(cfg.omega_max, ctx.model.omega_max)

@@ -6,10 +6,28 @@ A user controller imports from here only::
     from copath.control import Observation, PeerMessage, Outgoing, StepResult, RobotContext
 
 See ``docs/controllers.md`` for the contract and how to test a controller.
+
+The kit (shared by the built-in controllers; ``docs/controllers-notes.md`` says what
+moved where):
+
+- :class:`LatestMessages` (:mod:`copath.control.inbox`): the newest message per
+  neighbour and kind, by stamp, with its age;
+- :meth:`copath.paths.Path.project`: a pose projected onto a path (global, or near a
+  previous guess so that it stays continuous along self-crossing curves);
+- :class:`PathTable`: one tabulated path (x, y, theta, kappa, dkappa/ds) for solvers
+  and horizons (``Path.table()`` builds and caches it);
+- the model limits on the model classes (:meth:`copath.models.OmniModel.max_speed`,
+  :meth:`~copath.models.OmniModel.max_rotation`,
+  :meth:`~copath.models.OmniModel.saturate_wheels`);
+- one table of solver options in :mod:`copath.mpc` (:func:`copath.mpc.qp_options`,
+  :func:`copath.mpc.jit_options`).
 """
 
 from .contract import Controller, Observation, Outgoing, PeerMessage, RobotContext, StepResult
 from .factory import ControllerFactory, as_factory, controller
+from .inbox import LatestMessages, Received
+from copath.paths import PathTable
 
 __all__ = ["Controller", "Observation", "Outgoing", "PeerMessage", "RobotContext", "StepResult",
-           "ControllerFactory", "controller", "as_factory"]
+           "ControllerFactory", "controller", "as_factory",
+           "LatestMessages", "Received", "PathTable"]

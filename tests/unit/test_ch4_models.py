@@ -16,7 +16,6 @@ from agent.controllers.ltv_mpc import (
     linear_model,
     ltv_error_dynamics,
     ltv_errors,
-    omega_limit,
     profile_speed,
 )
 from agent.controllers.omni_nmpc import (
@@ -221,7 +220,7 @@ def test_ltv_qp_matches_unconstrained_optimum():
 def test_rotation_limit_and_profile():
     """(4.17)-(4.18), (4.25)-(4.27) and the friction limit of E4.3."""
     np.testing.assert_allclose(rotation_speed_limit(np.array([0, 1, 3, 5])), [1.9, 1.705, 1.315, 0.925], atol=1e-9)
-    np.testing.assert_allclose(omega_limit(np.array([0.4, 1.0, 1.315])), [7.692, 4.615, 3.0], atol=1e-3)
+    np.testing.assert_allclose(OmniModel().max_rotation(np.array([0.4, 1.0, 1.315])), [7.692, 4.615, 3.0], atol=1e-3)
     u = profile_speed(np.array([0.0, 1.0, 3.28]), 1.0, 1.315, 0.18, 9.81)
     np.testing.assert_allclose(u, [1.0, 1.0, math.sqrt(0.18 * 9.81 / 3.28)], atol=1e-12)
     assert abs(u[2] - 0.733) < 1e-3

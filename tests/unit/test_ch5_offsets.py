@@ -9,7 +9,6 @@ import pytest
 from agent.controllers.leader_following import (
     FormationSchedule,
     LeaderPlan,
-    TabulatedPath,
     follower_reference,
     planned_min_separation,
 )
@@ -91,7 +90,7 @@ def test_follower_reference_is_consistent_in_time_during_a_transition():
     np.testing.assert_allclose(ref.u[inner], np.hypot(vel[inner, 0], vel[inner, 1]), atol=5e-4)
     np.testing.assert_allclose(ref.omega[inner], np.gradient(np.unwrap(ref.pose[:, 2]), h)[inner], atol=1e-2)
     # the tabulated geometry gives the same reference
-    fast = follower_reference(TabulatedPath(LEM), sch, "f2", s_c, 0.4)
+    fast = follower_reference(LEM.table(), sch, "f2", s_c, 0.4)
     np.testing.assert_allclose(fast.pose, ref.pose, atol=1e-5)
     np.testing.assert_allclose(fast.u, ref.u, atol=1e-4)
 

@@ -102,13 +102,13 @@ def test_neighbour_messages_newest_wins_and_wrap_near_own_progress():
     L = PATH.length
     old = PeerMessage("r2", "assumed_traj", 1.0, 0.05, {"t0": 1.0, "dt": DT, "s_hat": [5.0, 5.02], "psi_scale": 1.0})
     new = PeerMessage("r2", "assumed_traj", 2.0, 0.05, {"t0": 2.0, "dt": DT, "s_hat": [L + 0.1, L + 0.12]})
-    ctrl._receive([new, old])  # out of order: the older one must not replace the newer
+    ctrl._receive([new, old], 2.05)  # out of order: the older one must not replace the newer
     stamp, traj = ctrl.neighbour_traj["r2"]
     assert stamp == 2.0 and traj.values[0] == pytest.approx(L + 0.1)
     # a lap ahead on the closed path is the same place
     np.testing.assert_allclose(ctrl._wrap_near(np.array([L + 0.1]), np.array([0.0])), [0.1])
     ignored = PeerMessage("r3", "assumed_traj", 3.0, 0.05, {"t0": 3.0, "dt": DT, "s_hat": [1.0, 1.1]})
-    ctrl._receive([ignored])  # not a neighbour
+    ctrl._receive([ignored], 2.1)  # not a neighbour
     assert "r3" not in ctrl.neighbour_traj
 
 

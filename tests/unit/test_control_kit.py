@@ -1,0 +1,165 @@
+"""The controller kit (copath.control): inbox, path projection, path table, model limits,
+solver options. Each piece replaces copies that the built-in controllers used to carry."""
+
+import math
+
+import numpy as np
+import pytest
+
+from copath.control import LatestMessages, PathTable, PeerMessage
+from copath.models import OmniModel, rotation_speed_limit
+from copath.paths import circle, eight_curve, lemniscate, line, sinusoid
+
+
+def _msg(sender, stamp, kind="k", age=0.1, **payload):
+    return PeerMessage(sender, kind, stamp, age, payload, position=(stamp, 0.0))
+
+
+# -- LatestMessages -------------------------------------------------------------------
+
+
+def test_inbox_keeps_the_newest_message_per_sender_and_kind():
+    box = LatestMessages()
+    new = box.update([_msg("a", 1.0, v=1), _msg("a", 2.0, v=2), _msg("b", 1.5, v=3),
+                      _msg("a", 1.5, kind="other", v=4)], t=2.1)
+    assert len(new) == 4 and len(box) == 3
+    assert box.get("a", "k").payload["v"] == 2
+    assert box.get("a", "other").payload["v"] == 4
+    assert list(box.of_kind("k")) == ["a", "b"]
+
+
+def test_inbox_ignores_late_reordered_and_duplicated_messages():
+    box = LatestMessages()
+    box.update([_msg("a", 2.0, v=2)], t=2.1)
+    new = box.update([_msg("a", 1.0, v=1), _msg("a", 2.0, v=99)], t=2.2)  # older, then a duplicate stamp
+    assert new == []
+    got = box.get("a", "k")
+    assert got.payload["v"] == 2 and got.received_at == 2.1
+    assert box.update([_msg("a", 2.5, v=3)], t=2.6)[0].payload["v"] == 3
+
+
+def test_inbox_filters_kinds_senders_and_unusable_payloads():
+    box = LatestMessages(kinds=("k",), senders=("a", "b"), accept=lambda m: m.payload.get("ok", True))
+    box.update([_msg("a", 1.0), _msg("c", 1.0), _msg("b", 1.0, kind="x")], t=1.0)
+    assert ("a", "k") in box and len(box) == 1
+    box.update([_msg("a", 2.0, ok=False)], t=2.0)  # newer but unusable: the old one stays
+    assert box.get("a", "k").stamp == 1.0
+
+
+def test_inbox_ages_and_freshness():
+    box = LatestMessages()
+    box.update([_msg("a", 1.0, age=0.25), _msg("b", 3.0, age=0.05)], t=3.0)
+    a = box.get("a", "k")
+    assert a.age(4.0) == pytest.approx(0.25 + 1.0)  # age at delivery plus time held
+    assert a.since_stamp(4.0) == pytest.approx(3.0)
+    assert list(box.fresh("k", 4.0, max_age=2.0)) == ["b"]
+    assert list(box.fresh("k", 4.0, max_age=2.0, by="receipt")) == ["a", "b"]
+    assert list(box.fresh("k", 4.0, max_age=1.1, by="age")) == ["b"]
+    with pytest.raises(ValueError, match="by = 'x' is not allowed"):
+        box.fresh("k", 4.0, 1.0, by="x")
+    box.forget(sender="a")
+    assert list(box.of_kind("k")) == ["b"]
+    box.forget()
+    assert len(box) == 0
+
+
+# -- projection -----------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("make", [eight_curve, lemniscate, lambda: sinusoid(0.3, 2.0, 6.0)])
+def test_projection_finds_the_nearest_path_point(make):
+    path = make()
+    rng = np.random.default_rng(1)
+    for s_true in rng.uniform(0.05, path.length - 0.05, 10):
+        th = path.theta(s_true)
+        d = rng.uniform(-0.05, 0.05)  # small normal offset: the foot point is s_true
+        p = path.pos(s_true) + d * np.array([-math.sin(th), math.cos(th)])
+        s = path.project(p)
+        assert path.wrap(s) == pytest.approx(s_true, abs=1e-6)
+        # a whole pose is accepted too (only x, y are used)
+        assert path.project([*p, 1.0]) == pytest.approx(s)
+
+
+def test_projection_near_a_guess_stays_on_its_branch_at_a_self_crossing():
+    path = lemniscate()
+    s = np.linspace(0.0, path.length, 4001)
+    xy = path.pos(s)
+    # the lemniscate crosses itself at the origin: two arc lengths share that point
+    near = s[np.hypot(xy[:, 0], xy[:, 1]) < 1e-3]
+    s_a = float(near[0])
+    s_b = float([v for v in near if abs(v - s_a) > 1.0][0])
+    for s_guess in (s_a, s_b):
+        got = [path.project(path.pos(v), s_guess=v - 0.01, window=0.2) for v in np.linspace(s_guess - 0.1, s_guess + 0.1, 9)]
+        np.testing.assert_allclose(got, np.linspace(s_guess - 0.1, s_guess + 0.1, 9), atol=1e-6)
+
+
+# -- path table -----------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("make", [eight_curve, lambda: line((0.0, 0.0), 0.3, 4.0)])
+def test_path_table_matches_the_curve(make):
+    path = make()
+    table = path.table()
+    assert path.table() is table and isinstance(table, PathTable)
+    s = np.linspace(-0.5 if not path.closed else 0.0, path.length + 0.5, 777)
+    x, y, th, k = path.frame(s)
+    g = table(s)
+    np.testing.assert_allclose(g[0], x, atol=1e-6)
+    np.testing.assert_allclose(g[1], y, atol=1e-6)
+    np.testing.assert_allclose(g[2], th, atol=1e-5)
+    np.testing.assert_allclose(g[3], k, atol=2e-3)
+    np.testing.assert_allclose(table.pos(s), path.pos(s), atol=1e-6)
+    np.testing.assert_allclose(table.theta(s), th, atol=1e-5)
+    assert table.frame(1.0) == pytest.approx(path.frame(1.0), abs=2e-3)
+
+
+def test_path_table_theta_grows_by_the_winding_per_lap():
+    path = lemniscate()  # winding number 0: theta returns after a lap
+    table = path.table()
+    assert table.theta(1.0 + path.length) == pytest.approx(table.theta(1.0), abs=1e-9)
+    circle_like = circle(1.0)
+    t2 = circle_like.table()
+    lap = 2 * math.pi * circle_like.winding
+    assert circle_like.winding == 1
+    assert t2.theta(0.5 + circle_like.length) == pytest.approx(t2.theta(0.5) + lap, abs=1e-9)
+
+
+# -- model limits ---------------------------------------------------------------------
+
+
+def test_omni_limits_are_one_line_and_its_inverse():
+    m = OmniModel()
+    omega = np.array([0.0, 1.0, 3.0, 5.0])
+    np.testing.assert_allclose(m.max_speed(omega), rotation_speed_limit(omega), atol=0)
+    np.testing.assert_allclose(m.max_rotation(m.max_speed(omega)), omega, atol=1e-12)  # inverse
+    np.testing.assert_allclose(m.max_rotation([0.4, 1.0, 1.315]), [7.692, 4.615, 3.0], atol=1e-3)
+    # turning with the tangent: u = r(kappa u)
+    for kappa in (0.0, 0.5, 2.0):
+        u = float(m.max_tangent_speed(kappa))
+        assert u == pytest.approx(float(m.max_speed(kappa * u)))
+
+
+def test_omni_wheel_saturation_keeps_the_direction():
+    m = OmniModel()
+    q = np.array([3.8, -1.0, 0.5])
+    sat = m.saturate_wheels(q)
+    assert np.max(np.abs(sat)) == pytest.approx(m.qdot_max)
+    assert np.cross(sat, q) == pytest.approx(np.zeros(3), abs=1e-12)
+    small = np.array([0.1, -0.2, 0.3])
+    np.testing.assert_array_equal(m.saturate_wheels(small), small)
+
+
+# -- solver options -------------------------------------------------------------------
+
+
+def test_one_solver_options_table():
+    mpc = pytest.importorskip("copath.mpc")
+    for name in mpc.QP_SOLVERS + ("daqp",):
+        opts = mpc.qp_options(name)
+        assert opts["error_on_fail"] is False
+    a = mpc.qp_options("osqp", warm_start_primal=True)
+    a["osqp"]["verbose"] = True  # a copy: the table is not changed
+    assert mpc.QP_OPTIONS["osqp"]["osqp"]["verbose"] is False and "warm_start_primal" not in mpc.QP_OPTIONS["osqp"]
+    with pytest.raises(ValueError, match="qp_solver = 'none' is not allowed"):
+        mpc.qp_options("none")
+    assert mpc.jit_options(("-O1",))["jit_options"]["flags"] == ["-O1"]

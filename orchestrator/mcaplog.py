@@ -3,7 +3,9 @@
 Every message under the run prefix lands in ``run.mcap`` unchanged (msgpack encoding,
 schema id 0, one channel per key, zstd chunks), stamped with its receive time. The
 effective scenario (JSON) and the software version are MCAP metadata, so a run is
-explainable from its log alone.
+explainable from its log alone. Given the scenario, the recorder also writes the
+Foxglove views of the run beside them (``/viz/*`` protobuf channels, orchestrator/viz.py)
+and can hand them to a live server (orchestrator/live.py) as they are made.
 """
 
 from __future__ import annotations
@@ -22,7 +24,7 @@ from mcap.writer import CompressionType, Writer
 from copath.wire.keys import Keys
 from copath.wire.messages import End, Stats, Truth, WireError, unpack
 
-__all__ = ["Recorder", "RunLog", "read_log", "iter_raw", "software_version"]
+__all__ = ["Recorder", "RunLog", "read_log", "iter_raw", "software_version", "write_records"]
 
 
 def software_version() -> str:
@@ -38,7 +40,7 @@ class Recorder:
     """Writes every (key, bytes) it is given to an MCAP file; thread-safe."""
 
     def __init__(self, path: pathlib.Path, keys: Keys, metadata: dict[str, dict[str, str]],
-                 scenario=None) -> None:
+                 scenario=None, live=None) -> None:
         self.path = pathlib.Path(path)
         self.keys = keys
         self._fh = self.path.open("wb")
@@ -53,22 +55,32 @@ class Recorder:
         self.stats: dict[str, Stats] = {}
         self.end: End | None = None
         self._closed = False
-        self._viz: dict[str, int] = {}
-        self._radii = {}
-        if scenario is not None:  # Foxglove channels derived from the truth (orchestrator/viz.py)
-            from . import viz
+        self._viz = None
+        self._viz_lock = threading.Lock()  # the builder keeps state across records
+        self._sinks: list = []
+        if scenario is not None:  # Foxglove views built from the records (orchestrator/viz.py)
+            from .viz import McapVizSink, VizBuilder
 
-            self._vizmod = viz
-            self._radii = {r.name: r.model.radius for r in scenario.robots}
-            for topic, schema_name in viz.TOPICS.items():
-                sid = self._w.register_schema(schema_name, "jsonschema", json.dumps(viz.SCHEMAS[schema_name]).encode())
-                self._viz[topic] = self._w.register_channel(topic=topic, message_encoding=MessageEncoding.JSON,
-                                                            schema_id=sid)
-            self._w.add_message(self._viz["/viz/scene"], log_time=time.time_ns(), data=viz.static_scene(scenario),
-                                publish_time=time.time_ns(), sequence=0)
+            self._viz = VizBuilder(scenario, keys)
+            self._sinks = [McapVizSink(self._w)] + ([live] if live is not None else [])
+            self._emit(self._viz.static(), time.time_ns())
 
-    def write(self, key: str, data: bytes) -> None:
-        now = time.time_ns()
+    def _emit(self, msgs, now: int) -> None:
+        """Hand Foxglove messages to every sink (the MCAP one under the writer's lock)."""
+        if not msgs:
+            return
+        with self._lock:
+            if self._closed:
+                return
+            for topic, msg in msgs:
+                self._sinks[0].log(topic, msg, now)
+        for sink in self._sinks[1:]:
+            for topic, msg in msgs:
+                sink.log(topic, msg, now)
+
+    def write(self, key: str, data: bytes, log_time_ns: int | None = None) -> None:
+        """Record ``data`` published on ``key`` (stamped now, or at ``log_time_ns``)."""
+        now = time.time_ns() if log_time_ns is None else int(log_time_ns)
         rel = self.keys.relative(key)
         with self._lock:
             if self._closed:
@@ -81,25 +93,34 @@ class Recorder:
             n = self.count_by_key.get(key, 0) + 1
             self.count_by_key[key] = n
             self._w.add_message(ch, log_time=now, data=data, publish_time=now, sequence=n)
-        # light decoding for progress and the closing account
-        if rel == "sim/truth" or rel.startswith("stats/") or rel == "sim/end":
+        # light decoding for progress and the closing account (every record when views are built)
+        if self._viz is not None or rel == "sim/truth" or rel.startswith("stats/") or rel == "sim/end":
             try:
                 rec = unpack(data)
             except WireError:
                 return
             if isinstance(rec, Truth):
                 self.sim_t = rec.t
-                if self._viz:
-                    scene = self._vizmod.scene_update(rec, self._radii)
-                    poses = self._vizmod.poses_in_frame(rec)
-                    with self._lock:
-                        if not self._closed:
-                            self._w.add_message(self._viz["/viz/scene"], log_time=now, data=scene, publish_time=now)
-                            self._w.add_message(self._viz["/viz/robots"], log_time=now, data=poses, publish_time=now)
             elif isinstance(rec, Stats):
                 self.stats[rec.proc] = rec
             elif isinstance(rec, End):
                 self.end = rec
+            if self._viz is not None:
+                with self._viz_lock:
+                    self._emit(self._viz.feed(key, rec), now)
+
+    def add_process_logs(self, log_dir: pathlib.Path) -> int:
+        """Every line of the processes' logs (``log_dir/*.log``) as ``foxglove.Log`` on
+        ``/viz/log``; returns the number of lines."""
+        if self._viz is None or not pathlib.Path(log_dir).is_dir():
+            return 0
+        from .viz import process_log_messages
+
+        n = 0
+        for t, msg in process_log_messages(log_dir, time.time_ns()):
+            self._emit([("/viz/log", msg)], t)
+            n += 1
+        return n
 
     def finish(self, extra_metadata: dict[str, dict[str, str]] | None = None) -> None:
         with self._lock:
@@ -110,6 +131,23 @@ class Recorder:
                 self._w.add_metadata(name, {k: str(v) for k, v in data.items()})
             self._w.finish()
             self._fh.close()
+
+
+def write_records(path: pathlib.Path, records, scenario, run_id: str, origin_ns: int | None = None) -> pathlib.Path:
+    """Write the records of an in-process run (``orchestrator.inprocess``) as a run log,
+    Foxglove views included, stamped ``origin_ns`` (default: now) plus their sim time."""
+    keys = Keys(run_id)
+    raw = dict(scenario.raw)
+    raw["_source"] = scenario.source
+    metadata = {"scenario": {"json": json.dumps(raw), "id": scenario.id, "source": scenario.source},
+                "copath": {"version": software_version(), "run_id": run_id, "clock": "lockstep",
+                           "seed": str(scenario.run.seed), "robots": ",".join(scenario.robot_names), "inprocess": "true"}}
+    origin = time.time_ns() if origin_ns is None else origin_ns
+    rec = Recorder(pathlib.Path(path), keys, metadata, scenario)
+    for t, key, r in records:
+        rec.write(key, r.pack(), log_time_ns=origin + t)
+    rec.finish({"outcome": {"ok": "True", "reason": "in-process run"}})
+    return pathlib.Path(path)
 
 
 @dataclass

@@ -79,7 +79,7 @@ def format_info(info: dict) -> str:
     for topic, n in info["channels"].items():
         lines.append(f"  {topic:<{width}}  {n:>8d} msgs  (msgpack)")
     for topic, n in info.get("viz_channels", {}).items():
-        lines.append(f"  {topic:<{width}}  {n:>8d} msgs  (json, Foxglove, derived from sim/truth)")
+        lines.append(f"  {topic:<{width}}  {n:>8d} msgs  (Foxglove view)")
     return "\n".join(lines)
 
 

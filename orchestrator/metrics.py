@@ -31,7 +31,7 @@ from copath.wire.messages import Command, End, Estimate, Event, Stats, Telemetry
 from .metrics_estimation import ESTIMATION_KEYS, estimation_metrics
 from .metrics_truth import truth_metrics
 
-__all__ = ["RobotTrace", "Trace", "trace_from_records", "compute_metrics", "METRIC_KEYS"]
+__all__ = ["RobotTrace", "Trace", "trace_from_records", "compute_metrics", "metrics_from_log", "METRIC_KEYS"]
 
 ROBOT_KEYS = (
     "path_error_max_m",
@@ -315,3 +315,38 @@ def compute_metrics(
         "robots": robots,
         "fleet": fleet,
     }
+
+
+def metrics_from_log(path) -> dict[str, Any]:
+    """metrics.json recomputed from a run log alone (``copath metrics RUN.mcap``).
+
+    The scenario comes from the log's metadata; ``messages_published`` from the closing
+    accounts in the log; ``wall_time_s`` is not in the log and is null; ``ok`` and
+    ``failure`` come from the recorded outcome. Raises ValueError for a log without a
+    scenario.
+    """
+    from copath.scenario import ConfigError, parse_scenario  # noqa: PLC0415
+
+    from .mcaplog import read_log  # noqa: PLC0415
+
+    log = read_log(path)
+    raw = log.scenario_raw
+    if not raw:
+        raise ValueError(f"{path}: the log has no scenario in its metadata (not a copath run log?)")
+    try:
+        scenario = parse_scenario(raw, base_dir=None, source=str(raw.get("_source", "")))
+    except ConfigError as exc:
+        raise ValueError(f"{path}: the recorded scenario does not parse: {exc}") from exc
+    keys = Keys(log.run_id)
+    stats = [r for _, _, r in log.records if isinstance(r, Stats)]
+    recorded = sum(1 for _, k, _ in log.records if not keys.relative(k).startswith("stats/")) + log.rejected
+    outcome = log.metadata.get("outcome", {})
+    ok = outcome.get("ok", "True") == "True"
+    trace = trace_from_records(log.records, keys)
+    m = compute_metrics(trace, scenario, run_id=log.run_id, clock=log.metadata.get("copath", {}).get("clock", ""),
+                        wall_time_s=float("nan"),
+                        messages_published=sum(s.published for s in stats) if stats and ok else None,
+                        messages_recorded=recorded)
+    m["ok"] = ok
+    m["failure"] = None if ok else outcome.get("reason")
+    return m

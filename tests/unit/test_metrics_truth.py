@@ -117,3 +117,29 @@ def test_single_robot_has_no_team_figures():
               "coordination_error_max_reported_m"):
         assert f[k] is None
     assert not math.isnan(f["min_separation_m"] or 0.0)
+
+
+def test_copath_metrics_recomputes_metrics_json_from_a_log(e55, tmp_path, capsys):
+    from copath.wire.keys import Keys
+    from orchestrator.cli import main
+    from orchestrator.mcaplog import Recorder
+
+    res = run_scenario(e55, run_id="metrics-from-log")
+    raw = dict(e55.raw, _source=e55.source)
+    meta = {"scenario": {"json": json.dumps(raw), "id": e55.id, "source": e55.source},
+            "copath": {"run_id": "metrics-from-log", "clock": "lockstep"}}
+    log = tmp_path / "run.mcap"
+    rec = Recorder(log, Keys("metrics-from-log"), meta)
+    for _, key, r in res.records:
+        rec.write(key, r.pack())
+    rec.finish({"outcome": {"ok": "True", "reason": "completed"}})
+    out = tmp_path / "metrics.json"
+    assert main(["metrics", str(log), "--out", str(out)]) == 0
+    m = json.loads(out.read_text())
+    assert m["ok"] is True and m["wall_time_s"] is None
+    for k in ("coordination_error_max_m", "coordination_error_rms_m", "formation_error_max_m",
+              "coordination_error_max_reported_m", "min_separation_m", "messages_recorded"):
+        assert m["fleet"][k] == res.metrics["fleet"][k], k
+    assert m["robots"] == res.metrics["robots"]
+    assert main(["metrics", str(tmp_path / "missing.mcap")]) == 2
+    assert "missing.mcap" in capsys.readouterr().err

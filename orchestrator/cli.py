@@ -7,6 +7,7 @@ Subcommands::
     copath agent --run-id ID --robot NAME --config FILE [--connect ENDPOINT]
     copath sim   --run-id ID --config FILE [--connect ENDPOINT]
     copath info RUN.mcap [--json]
+    copath metrics RUN.mcap [--out metrics.json]
     copath replay RUN.mcap [--speed X] [--run-id ID] [--connect ENDPOINT]
     copath scenarios
     copath bench solve|dmpc ...
@@ -170,6 +171,25 @@ def _cmd_info(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_metrics(args: argparse.Namespace) -> int:
+    """``copath metrics RUN.mcap [--out FILE]``: metrics.json recomputed from a run log."""
+    from .metrics import metrics_from_log
+
+    try:
+        m = metrics_from_log(args.log)
+    except (FileNotFoundError, ValueError) as exc:
+        print(f"copath metrics: {exc}", file=sys.stderr)
+        return 2
+    text = json.dumps(m, indent=2)
+    if args.out:
+        pathlib.Path(args.out).write_text(text)
+        print(summary_table(m))
+        print(f"metrics: {args.out}")
+    else:
+        print(text)
+    return 0
+
+
 def _cmd_replay(args: argparse.Namespace) -> int:
     from .replay import replay
 
@@ -226,6 +246,9 @@ def build_parser() -> argparse.ArgumentParser:
     i.add_argument("log")
     i.add_argument("--json", action="store_true")
     i.add_argument("--scenario", action="store_true", help="also print the recorded scenario")
+    mt = sub.add_parser("metrics", help="recompute metrics.json from a run log (from the truth it recorded)")
+    mt.add_argument("log")
+    mt.add_argument("--out", help="write metrics.json here [print it]")
     rp = sub.add_parser("replay", help="republish a run log on Zenoh with its original timing")
     rp.add_argument("log")
     rp.add_argument("--speed", type=float, default=1.0)
@@ -258,7 +281,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         args, rest = parser.parse_known_args(argv)
         return _cmd_bench(args, rest)
     args = parser.parse_args(argv)
-    handlers = {"run": _cmd_run, "info": _cmd_info, "replay": _cmd_replay, "scenarios": _cmd_scenarios,
+    handlers = {"run": _cmd_run, "info": _cmd_info, "metrics": _cmd_metrics, "replay": _cmd_replay, "scenarios": _cmd_scenarios,
                 "validate": _cmd_validate, "controllers": _cmd_controllers}
     return handlers[args.command](args)
 

@@ -3,7 +3,7 @@ never notes kept outside the repository, and every docs/ file or entry they cite
 
 Entries are cited as ``docs/<topic>.md, <letter(s)><number>`` (e.g. "docs/ambiguities.md,
 A21" or a range "docs/measurements.md, M1-M3"); an entry is a markdown heading that
-starts with its label.
+starts with its label. The experiment catalogue covers every bundled scenario.
 """
 
 from __future__ import annotations
@@ -11,6 +11,7 @@ from __future__ import annotations
 import re
 import shutil
 import subprocess
+import tomllib
 from pathlib import Path
 
 import pytest
@@ -91,3 +92,18 @@ def test_docs_index_lists_every_doc():
     assert docs, "docs/ holds topic files"
     unlisted = [name for name in docs if f"({name})" not in index]
     assert not unlisted, f"docs/README.md does not link {unlisted}"
+
+
+def test_experiment_catalogue_covers_every_bundled_scenario():
+    catalogue = (ROOT / "docs" / "experiments.md").read_text(encoding="utf-8")
+    entries = {m.group(1).lower() for m in re.finditer(r"^###\s+(E\d+\.\d+)\b", catalogue, re.M)}
+    configs = sorted((ROOT / "configs").glob("*.toml"))
+    assert configs, "configs/ holds the bundled scenarios"
+    missing = []
+    for f in configs:
+        experiment = tomllib.loads(f.read_text(encoding="utf-8")).get("experiment")
+        if f"`{f.name}`" not in catalogue:
+            missing.append(f"{f.name} is not in docs/experiments.md")
+        if experiment is not None and str(experiment).lower() not in entries:
+            missing.append(f"{f.name}: experiment {experiment!r} has no entry in docs/experiments.md")
+    assert not missing, "\n".join(missing)

@@ -296,7 +296,8 @@ class PoseEKF:
     t_a. Each step replays that window in time order, so a measurement taken at t_m and
     received later is fused exactly where an undelayed one would have been (a
     fixed-lag re-propagation, docs/sensing.md). The anchor then moves to the newest
-    segment boundary older than ``max_delay_s``.
+    segment boundary older than the sensors' latency (at most ``max_delay_s``): anything
+    taken before it has already arrived.
     """
 
     def __init__(self, profile: SensorProfile, kind: str, cfg: EstimatorConfig, t0: float, pose0: Sequence[float]) -> None:
@@ -419,7 +420,9 @@ class PoseEKF:
 
     def _replay(self, t: float) -> None:
         t_a, x, P = self._anchor
-        cut = t - self.cfg.max_delay_s
+        # everything taken before t - (sensor latency) has arrived: the window need not reach further back
+        latency = max(self.profile.fix_latency_s, self.profile.heading_latency_s)
+        cut = t - min(self.cfg.max_delay_s, latency + 1e-6)
         new_anchor = None
         cur = t_a
         mi = 0

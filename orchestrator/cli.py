@@ -1,16 +1,22 @@
 """``copath``: the command line of the fleet runtime.
 
-Subcommands::
+Subcommands (``copath --version``; ``--log-level LEVEL`` before or after the subcommand)::
 
-    copath run CONFIG [--out DIR] [--duration S] [--clock lockstep|realtime] [--seed N]
-                      [--delay MS] [--jitter MS] [--loss P] [--run-id ID] [--inprocess]
+    copath run CONFIG [--out DIR] [--set KEY=VALUE]... [--duration S] [--clock lockstep|realtime]
+                      [--seed N] [--delay MS] [--jitter MS] [--loss P] [--run-id ID] [--inprocess]
+                      [--connect ENDPOINT] [--listen ENDPOINT] [--check] [--no-plots]
+    copath sweep CONFIG [--seeds 1-10] [--set KEY=V1,V2,...]... [--inprocess] [--jobs N] [--out DIR]
     copath agent --run-id ID --robot NAME --config FILE [--connect ENDPOINT]
     copath sim   --run-id ID --config FILE [--connect ENDPOINT]
     copath info RUN.mcap [--json]
     copath metrics RUN.mcap [--out metrics.json]
     copath replay RUN.mcap [--speed X] [--run-id ID] [--connect ENDPOINT]
-    copath scenarios
+    copath scenarios [--json]
     copath bench solve|dmpc ...
+
+CONFIG is a scenario file, or a bundled scenario by its file stem or its experiment id
+(``copath run e5.5``). Exit codes: 0 done, 1 the run failed, 2 bad input, 3 a target of
+the scenario's ``[targets]`` was missed (``--check``).
 """
 
 from __future__ import annotations
@@ -22,31 +28,35 @@ import pathlib
 import sys
 from typing import Sequence
 
-from copath.scenario import ConfigError, Scenario, load_scenario
+from copath.scenario import ConfigError, Scenario
 
-from .validate import validate_file, validate_scenario
+from . import api
+from .validate import validate_file
 
-__all__ = ["main"]
+__all__ = ["main", "build_parser", "summary_table", "targets_table"]
 
-CONFIGS = pathlib.Path(__file__).resolve().parents[1] / "configs"
+logger = logging.getLogger("copath")
+
+EXIT_FAILED, EXIT_INPUT, EXIT_TARGETS = 1, 2, 3
+
+_SHORTHANDS = (("duration", "run.duration_s"), ("clock", "run.clock"), ("seed", "run.seed"),
+               ("delay", "network.delay_ms"), ("jitter", "network.jitter_ms"), ("loss", "network.loss"))
 
 
-def _overrides(args: argparse.Namespace, scenario: Scenario) -> Scenario:
-    run, net = {}, {}
-    if args.duration is not None:
-        run["duration_s"] = args.duration
-    if args.clock is not None:
-        run["clock"] = args.clock
-    if args.seed is not None:
-        run["seed"] = args.seed
-    if args.delay is not None:
-        net["delay_ms"] = args.delay
-    if args.jitter is not None:
-        net["jitter_ms"] = args.jitter
-    if args.loss is not None:
-        net["loss"] = args.loss
-    sections = {k: v for k, v in (("run", run), ("network", net)) if v}
-    return scenario.with_overrides(**sections) if sections else scenario
+def _overrides(args: argparse.Namespace) -> dict:
+    """``--set KEY=VALUE`` items (TOML literals) plus the shorthand flags (``--loss`` is
+    ``--set network.loss=...``); a later --set of the same key wins."""
+    out = {key: getattr(args, flag) for flag, key in _SHORTHANDS if getattr(args, flag, None) is not None}
+    for item in getattr(args, "set", None) or []:
+        k, v = api.parse_set(item)
+        out[k] = api.parse_value(v)
+    return out
+
+
+def _load(config: str, overrides: dict) -> Scenario:
+    """The scenario meant by CONFIG (file, bundled stem or experiment id), overrides applied,
+    fully validated."""
+    return api.load(config, overrides)
 
 
 def _fmt(v, digits=3) -> str:
@@ -70,6 +80,19 @@ def summary_table(metrics: dict) -> str:
         lines.append(f"{name:<10}" + "".join(f"{_fmt(m.get(k)):>13}" for k, _ in cols))
     fleet = {k: v for k, v in metrics["fleet"].items() if v is not None}
     lines.append("fleet: " + "  ".join(f"{k}={_fmt(v)}" for k, v in fleet.items()))
+    return "\n".join(lines)
+
+
+def targets_table(results) -> str:
+    """The scenario's targets against the run: one line each, PASS or MISS."""
+    if not results:
+        return "targets: none in this scenario ([targets] table)"
+    lines = [f"targets ({sum(r.passed for r in results)}/{len(results)} met):"]
+    for r in results:
+        t = r.target
+        who = f" ({r.worst})" if r.worst else ""
+        val = "not measured" if r.value is None else f"{r.value:.4g}"
+        lines.append(f"  {'PASS' if r.passed else 'MISS'}  {t.key:<28} {val:>12}{who:<6} {t.sense} {t.threshold:g}")
     return "\n".join(lines)
 
 
@@ -116,42 +139,156 @@ def _cmd_controllers(args: argparse.Namespace) -> int:
     return 0
 
 
+def _plots(mcap: pathlib.Path, out: pathlib.Path) -> None:
+    """The run's figures (``copath plot``), when the plotting module is installed."""
+    try:
+        from .plot import plot_run
+    except ImportError:
+        logger.debug("orchestrator.plot is not available; no figures")
+        return
+    try:
+        files = plot_run(mcap, out)
+        n = len(files) if files is not None and hasattr(files, "__len__") else None
+        print(f"plots: {out}" + (f" ({n} figures)" if n is not None else ""))
+    except Exception as exc:  # a figure must never fail a run that completed
+        logger.warning("plots failed: %s", exc, exc_info=logger.isEnabledFor(logging.DEBUG))
+
+
+def _finish(args: argparse.Namespace, scenario: Scenario, metrics: dict | None) -> int:
+    """Summary table and targets; the exit code of --check."""
+    from copath.targets import grade
+
+    if metrics is None:
+        return 0
+    print(summary_table(metrics))
+    results = grade(scenario.targets, metrics)
+    print(targets_table(results))
+    if getattr(args, "check", False) and not all(r.passed for r in results):
+        missed = [r.target.key for r in results if not r.passed]
+        print(f"copath run: --check: {len(missed)} target(s) missed: {', '.join(missed)}", file=sys.stderr)
+        return EXIT_TARGETS
+    return 0
+
+
 def _cmd_run(args: argparse.Namespace) -> int:
+    from copath.wire.keys import valid_run_id
+
     from .fleet import RunOptions, new_run_id, run_fleet
+    from .progress import Progress
 
     try:
-        scenario = validate_scenario(_overrides(args, validate_file(args.config)))
+        scenario = _load(args.config, _overrides(args))
         run_id = args.run_id or new_run_id(scenario.id)
-        from copath.wire.keys import valid_run_id
-
         valid_run_id(run_id)
+        if args.inprocess and scenario.run.clock != "lockstep":
+            raise ConfigError(f"run.clock = {scenario.run.clock!r} is not allowed with --inprocess; "
+                              "in-process runs are lockstep only")
     except (ConfigError, ValueError) as exc:
         _print_errors("copath run", args.config, exc)
-        return 2
+        return EXIT_INPUT
     out = pathlib.Path(args.out or pathlib.Path("runs") / run_id)
+    where = "in this process" if args.inprocess else f"{len(scenario.robots) + 1} processes"
+    print(f"copath run {scenario.id} ({len(scenario.robots)} robots, {scenario.run.clock}, {where}) -> {out}",
+          file=sys.stderr)
     if args.inprocess:
         from .inprocess import run_scenario
 
-        if scenario.run.clock != "lockstep":
-            print("copath run: --inprocess runs lockstep only; drop --clock realtime", file=sys.stderr)
-            return 2
         out.mkdir(parents=True, exist_ok=True)
-        res = run_scenario(scenario, run_id=run_id)
+        progress = Progress(scenario.run.duration_s, enabled=not args.quiet,
+                            starting="building controllers (solvers compile)").start()
+        try:
+            res = run_scenario(scenario, run_id=run_id, on_tick=progress.update)
+        finally:
+            progress.done()
         res.metrics["ok"], res.metrics["failure"] = True, None
         (out / "metrics.json").write_text(json.dumps(res.metrics, indent=2))
-        print(summary_table(res.metrics))
+        rc = _finish(args, scenario, res.metrics)
         print(f"metrics: {out / 'metrics.json'} (in-process run: no MCAP log)")
-        return 0
-    print(f"copath run {scenario.id} ({len(scenario.robots)} robots, {scenario.run.clock}) -> {out}", file=sys.stderr)
+        return rc
     outcome = run_fleet(scenario, RunOptions(out_dir=out, run_id=run_id, progress=not args.quiet,
-                                             wall_timeout_s=args.wall_timeout))
-    if outcome.metrics is not None:
-        print(summary_table(outcome.metrics))
+                                             wall_timeout_s=args.wall_timeout, connect=tuple(args.connect),
+                                             listen=tuple(args.listen)))
+    rc = _finish(args, scenario, outcome.metrics)
     print(f"log: {out / 'run.mcap'}\nmetrics: {out / 'metrics.json'}")
+    if not args.no_plots and (out / "run.mcap").is_file():
+        _plots(out / "run.mcap", out)
     if not outcome.ok:
         print(f"copath run: FAILED: {outcome.reason}", file=sys.stderr)
-        return 1
+        return EXIT_FAILED
+    return rc
+
+
+def _cmd_sweep(args: argparse.Namespace) -> int:
+    import time
+
+    from . import sweep
+
+    try:
+        axes = sweep.parse_axes(args.set)
+        seeds = sweep.parse_seeds(args.seeds) if args.seeds else None
+        path = api.find_scenario(args.config)
+        base = api.load(path)
+        settings = sweep.plan(axes, seeds)
+        for st in settings:
+            api.load(path, st)
+        if args.inprocess and any(api.load(path, st).run.clock != "lockstep" for st in settings[:1]):
+            raise ConfigError("run.clock = 'realtime' is not allowed with --inprocess; in-process runs are lockstep only")
+        if args.jobs is not None and args.jobs < 1:
+            raise ConfigError(f"--jobs = {args.jobs} is not allowed; must be >= 1")
+    except (ConfigError, ValueError) as exc:
+        _print_errors("copath sweep", args.config, exc)
+        return EXIT_INPUT
+    out = pathlib.Path(args.out or pathlib.Path("runs") / f"sweep-{base.id}-{time.strftime('%Y%m%d-%H%M%S')}")
+    jobs = args.jobs or sweep.default_jobs(len(base.robots), args.inprocess)
+    kind = "in-process runs" if args.inprocess else "fleet runs"
+    print(f"copath sweep {base.id}: {len(settings)} {kind}, {jobs} at a time -> {out}", file=sys.stderr)
+    t0 = time.monotonic()
+
+    def done(row, n):
+        if args.quiet:
+            return
+        wall = time.monotonic() - t0
+        eta = wall / n * (len(settings) - n)
+        what = ", ".join(f"{k}={v}" for k, v in row.setting.items())
+        status = "ok" if row.ok else f"FAILED ({row.failure})"
+        print(f"  [{n}/{len(settings)}] {what}: {status}, {row.wall_s:.1f} s  (ETA {eta:.0f} s)", file=sys.stderr)
+
+    rows = sweep.run_sweep(path, axes, seeds, out_dir=out, inprocess=args.inprocess, jobs=jobs,
+                           wall_timeout_s=args.wall_timeout, on_done=done)
+    text = sweep.format_summary(rows)
+    (out / "summary.txt").write_text(text + "\n")
+    print(text)
+    files = [] if args.no_plots else sweep.plot_sweep(rows, out)
+    print(f"table: {out / 'sweep.csv'}" + (f"\nplots: {len(files)} in {out}" if files else ""))
+    failed = sum(not r.ok for r in rows)
+    if failed:
+        print(f"copath sweep: {failed} of {len(rows)} runs failed", file=sys.stderr)
+        return EXIT_FAILED
+    if args.check and any(r.targets_met < r.targets_total for r in rows):
+        print("copath sweep: --check: targets missed in some runs", file=sys.stderr)
+        return EXIT_TARGETS
     return 0
+
+
+def _run_facts(log: pathlib.Path, info: dict) -> dict:
+    """Sim time, seed, fault settings and headline figures of a logged run (metrics.json
+    next to the log, else computed from the log's truth)."""
+    scen = info.get("scenario") or {}
+    net = dict(scen.get("network") or {})
+    faults = {k: v for k, v in net.items() if v not in (0, 0.0, [], None) and k != "burst_p_bg"}
+    noise = {f"noise.{k}": v for k, v in (scen.get("noise") or {}).items() if v not in (0, 0.0, None, [0, 0, 0])}
+    try:
+        run = api.open_run(log)
+        metrics = run.metrics
+    except Exception as exc:  # a log without truth still has an info page
+        logger.debug("no metrics for %s: %s", log, exc)
+        metrics = {}
+    return {
+        "sim_time_s": metrics.get("sim_time_s"),
+        "seed": (scen.get("run") or {}).get("seed", 0),
+        "faults": {**{f"network.{k}": v for k, v in faults.items()}, **noise},
+        "headline": api.headline(metrics) if metrics else {},
+    }
 
 
 def _cmd_info(args: argparse.Namespace) -> int:
@@ -161,11 +298,19 @@ def _cmd_info(args: argparse.Namespace) -> int:
         info = log_info(args.log)
     except (FileNotFoundError, ValueError) as exc:
         print(f"copath info: {exc}", file=sys.stderr)
-        return 2
+        return EXIT_INPUT
+    facts = _run_facts(pathlib.Path(args.log), info)
     if args.json:
-        print_json({k: v for k, v in info.items() if k != "scenario" or args.scenario})
+        print_json({**{k: v for k, v in info.items() if k != "scenario" or args.scenario}, **facts})
     else:
         print(format_info(info))
+        print(f"Sim time:     {_fmt(facts['sim_time_s'], 2)} s")
+        print(f"Seed:         {facts['seed']}")
+        faults = facts["faults"]
+        print("Faults:       " + (", ".join(f"{k}={json.dumps(v)}" for k, v in faults.items()) or "none"))
+        shown = {k: v for k, v in facts["headline"].items() if v is not None}
+        if shown:
+            print("Metrics:      " + "  ".join(f"{k}={_fmt(v, 4)}" for k, v in shown.items()))
         if args.scenario:
             print(json.dumps(info["scenario"], indent=1))
     return 0
@@ -179,7 +324,7 @@ def _cmd_metrics(args: argparse.Namespace) -> int:
         m = metrics_from_log(args.log)
     except (FileNotFoundError, ValueError) as exc:
         print(f"copath metrics: {exc}", file=sys.stderr)
-        return 2
+        return EXIT_INPUT
     text = json.dumps(m, indent=2)
     if args.out:
         pathlib.Path(args.out).write_text(text)
@@ -205,12 +350,25 @@ def _cmd_replay(args: argparse.Namespace) -> int:
 
 
 def _cmd_scenarios(args: argparse.Namespace) -> int:
-    for f in sorted(CONFIGS.glob("e*.toml")):
+    """The bundled scenarios: file stem, experiment id, robots and title."""
+    rows = []
+    for b in api.bundled_scenarios():
         try:
-            s = load_scenario(f)
-            print(f"{f.name:<48} {len(s.robots):>3} robots  {s.title}")
-        except ConfigError as exc:
-            print(f"{f.name:<48} INVALID: {exc}")
+            s = api.load(b.path)
+            rows.append({"stem": b.stem, "experiment": b.experiment, "robots": len(s.robots), "title": s.title,
+                         "targets": len(s.targets), "error": None})
+        except (ConfigError, ValueError) as exc:
+            rows.append({"stem": b.stem, "experiment": b.experiment, "robots": None, "title": b.title,
+                         "targets": None, "error": str(exc)})
+    if getattr(args, "json", False):
+        print(json.dumps(rows, indent=1))
+        return 0
+    print(f"bundled scenarios in {api.bundled_dir()} (run one by stem or experiment id: copath run e5.5)")
+    for r in rows:
+        if r["error"]:
+            print(f"{r['stem']:<42} {r['experiment'] or '-':<6} INVALID: {r['error']}")
+        else:
+            print(f"{r['stem']:<42} {r['experiment'] or '-':<6} {r['robots']:>3} robots  {r['title']}")
     return 0
 
 
@@ -223,12 +381,24 @@ def _cmd_bench(args: argparse.Namespace, rest: list[str]) -> int:
     return int(mod.run(p.parse_args(rest)) or 0)
 
 
+LOG_LEVELS = ("debug", "info", "warning", "error")
+
+
 def build_parser() -> argparse.ArgumentParser:
+    from .mcaplog import software_version
+
+    common = argparse.ArgumentParser(add_help=False)
+    common.add_argument("--log-level", choices=LOG_LEVELS, default=argparse.SUPPRESS,
+                        help="logging level of this process [warning]")
     p = argparse.ArgumentParser(prog="copath", description="Coordinated path following and formation control "
-                                "of robot fleets: one process per robot over Zenoh.")
+                                "of robot fleets: one process per robot over Zenoh.", parents=[common])
+    p.add_argument("--version", action="version", version=f"copath {software_version()}")
     sub = p.add_subparsers(dest="command", required=True)
-    r = sub.add_parser("run", help="run a scenario as a fleet of processes and record it")
-    r.add_argument("config", help="scenario file, e.g. configs/e5.5-column-lemniscate.toml")
+    r = sub.add_parser("run", help="run a scenario as a fleet of processes and record it", parents=[common])
+    r.add_argument("config", help="scenario file, bundled file stem or experiment id (e.g. e5.5; see copath scenarios)")
+    r.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                   help="override any scenario value (TOML literal), e.g. network.delay_ms=100, "
+                   "robots.r1.pose=[0,0,0]; repeatable")
     r.add_argument("--out", help="output directory [runs/<run id>]")
     r.add_argument("--duration", type=float, help="simulated duration [s]")
     r.add_argument("--clock", choices=("lockstep", "realtime"))
@@ -239,23 +409,42 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--run-id", help="run id (letters, digits, '_-.') [scenario-time-random]")
     r.add_argument("--wall-timeout", type=float, metavar="S", help="give up after S wall seconds")
     r.add_argument("--inprocess", action="store_true", help="run in this process (lockstep, no Zenoh, no MCAP)")
+    r.add_argument("-e", "--connect", action="append", default=[], metavar="ENDPOINT",
+                   help="endpoint the run's router connects to (multi-host runs), e.g. tcp/10.0.0.2:7447")
+    r.add_argument("-l", "--listen", action="append", default=[], metavar="ENDPOINT",
+                   help="endpoint the run's router listens on [a free loopback port], e.g. tcp/0.0.0.0:7447")
+    r.add_argument("--check", action="store_true", help=f"exit {EXIT_TARGETS} when a target of [targets] is missed")
+    r.add_argument("--no-plots", action="store_true", help="do not write figures into the run directory")
     r.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    sw = sub.add_parser("sweep", help="run the product of settings and seeds; one table and plots", parents=[common])
+    sw.add_argument("config", help="scenario file, bundled file stem or experiment id")
+    sw.add_argument("--seeds", metavar="SEEDS", help="seeds to run for every setting, e.g. 1-10 or 1,4,9")
+    sw.add_argument("--set", action="append", default=[], metavar="KEY=V1,V2,...",
+                    help="a swept key and its values (TOML literals), e.g. network.loss=0,0.1,0.2; repeatable")
+    sw.add_argument("--inprocess", action="store_true", help="in-process lockstep runs instead of fleets")
+    sw.add_argument("-j", "--jobs", type=int, help="runs at once [cores / processes per run]")
+    sw.add_argument("--out", help="output directory [runs/sweep-<scenario>-<time>]")
+    sw.add_argument("--wall-timeout", type=float, metavar="S", help="give up a run after S wall seconds")
+    sw.add_argument("--check", action="store_true", help=f"exit {EXIT_TARGETS} when any run misses a target")
+    sw.add_argument("--no-plots", action="store_true", help="no figures")
+    sw.add_argument("-q", "--quiet", action="store_true", help="no line per finished run")
     sub.add_parser("agent", help="run one robot process (see copath agent --help)", add_help=False)
     sub.add_parser("sim", help="run the simulator process (see copath sim --help)", add_help=False)
-    i = sub.add_parser("info", help="summarise a run log")
+    i = sub.add_parser("info", help="summarise a run log", parents=[common])
     i.add_argument("log")
     i.add_argument("--json", action="store_true")
     i.add_argument("--scenario", action="store_true", help="also print the recorded scenario")
     mt = sub.add_parser("metrics", help="recompute metrics.json from a run log (from the truth it recorded)")
     mt.add_argument("log")
     mt.add_argument("--out", help="write metrics.json here [print it]")
-    rp = sub.add_parser("replay", help="republish a run log on Zenoh with its original timing")
+    rp = sub.add_parser("replay", help="republish a run log on Zenoh with its original timing", parents=[common])
     rp.add_argument("log")
     rp.add_argument("--speed", type=float, default=1.0)
     rp.add_argument("--run-id", help="publish under this run id instead of the recorded one")
     rp.add_argument("-e", "--connect", action="append", default=[], metavar="ENDPOINT")
     rp.add_argument("-l", "--listen", action="append", default=[], metavar="ENDPOINT")
-    sub.add_parser("scenarios", help="list the scenarios in configs/")
+    sc = sub.add_parser("scenarios", help="list the bundled scenarios", parents=[common])
+    sc.add_argument("--json", action="store_true")
     v = sub.add_parser("validate", help="check scenario files (controller parameters included) and print "
                        "every problem; starts nothing")
     v.add_argument("configs", nargs="+", metavar="CONFIG")
@@ -275,13 +464,15 @@ def main(argv: Sequence[str] | None = None) -> int:
         from sim.node import main as sim_main
 
         return sim_main(argv[1:])
-    logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
     parser = build_parser()
-    if argv and argv[0] == "bench":
-        args, rest = parser.parse_known_args(argv)
+    bench = bool(argv) and argv[0] == "bench"
+    args, rest = parser.parse_known_args(argv) if bench else (parser.parse_args(argv), [])
+    level = getattr(args, "log_level", "warning").upper()
+    logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
+    logging.getLogger().setLevel(level)
+    if bench:
         return _cmd_bench(args, rest)
-    args = parser.parse_args(argv)
-    handlers = {"run": _cmd_run, "info": _cmd_info, "metrics": _cmd_metrics, "replay": _cmd_replay, "scenarios": _cmd_scenarios,
+    handlers = {"run": _cmd_run, "sweep": _cmd_sweep, "info": _cmd_info, "metrics": _cmd_metrics, "replay": _cmd_replay, "scenarios": _cmd_scenarios,
                 "validate": _cmd_validate, "controllers": _cmd_controllers}
     return handlers[args.command](args)
 

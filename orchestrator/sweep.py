@@ -185,7 +185,8 @@ def summarise(rows: list[SweepRow]) -> tuple[list[str], list[str], list[dict[str
 
     Returns (setting keys, figure keys with any value, one dict per setting with
     ``setting``, ``runs``, ``failed``, ``targets_met``, ``targets_total``, ``mean``, ``worst``)."""
-    skeys = list(dict.fromkeys(k for r in rows for k in r.setting if k != "run.seed"))
+    swept = list(dict.fromkeys(k for r in rows for k in r.setting if k != "run.seed"))
+    skeys = [k for k in swept if len({_label(r.setting.get(k)) for r in rows}) > 1]  # constants are not columns
     fkeys = [k for k in api.HEADLINE if any(r.figures.get(k) is not None for r in rows)]
     groups: dict[tuple, list[SweepRow]] = {}
     for r in rows:

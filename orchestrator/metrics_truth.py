@@ -45,7 +45,8 @@ from copath.paths import Path
 from copath.scenario import Scenario
 from copath.slots import offset_points, solve_coordinate, switching_offsets, track_coordinate, wrap_near
 
-__all__ = ["TeamGeometry", "TruthSeries", "team_geometry", "truth_series", "truth_metrics", "FAMILIES"]
+__all__ = ["TeamGeometry", "TruthSeries", "team_geometry", "truth_series", "truth_metrics", "cross_track_series",
+           "FAMILIES"]
 
 
 @dataclass
@@ -65,6 +66,8 @@ class TeamGeometry:
     """Period of xi (a shared closed path's length) or 0."""
     leader: str | None = None
     """The robot whose xi is the team's reference, or None for the mean."""
+    lateral: Callable[[dict[str, np.ndarray]], dict[str, np.ndarray]] | None = None
+    """{robot: s (T,)} -> {robot: desired lateral offset q (T,)} from its path; None: 0."""
 
 
 def _params(scenario: Scenario, cls, name: str):
@@ -104,7 +107,8 @@ def _dmpc(scenario: Scenario) -> TeamGeometry:
         "dmpc", paths,
         xi=lambda S: {n: morph[n].psi(S[n]) - psi_d[n] for n in S},
         slots=lambda x: {n: offset_points(paths[n], morph[n].s(x + psi_d[n]), q[n]) for n in paths},
-        in_transition=_no_transition, period=period)
+        in_transition=_no_transition, period=period,
+        lateral=lambda S: {n: np.full(np.shape(S[n]), q[n]) for n in S})
 
 
 def _leader_following(scenario: Scenario) -> TeamGeometry:
@@ -137,8 +141,15 @@ def _leader_following(scenario: Scenario) -> TeamGeometry:
             mask |= (x >= w.s_start) & (x <= w.s_end)
         return mask
 
+    def lateral(S):
+        out = {n: np.zeros(np.shape(S[n])) for n in S}
+        for f in followers:
+            if f in S:
+                out[f] = schedule.offsets(f, S[leader])[3]
+        return out
+
     return TeamGeometry("leader_following", paths, xi, slots, in_transition,
-                        period=path.length if path.closed else 0.0, leader=leader)
+                        period=path.length if path.closed else 0.0, leader=leader, lateral=lateral)
 
 
 def _heterogeneous(scenario: Scenario) -> TeamGeometry:
@@ -153,7 +164,8 @@ def _heterogeneous(scenario: Scenario) -> TeamGeometry:
         "heterogeneous", paths,
         xi=lambda S: {n: S[n] + (offs[n][0] if n in offs else 0.0) for n in S},
         slots=lambda x: {n: offset_points(path, x - sd, q) for n, (sd, q) in offs.items()},
-        in_transition=_no_transition, period=path.length if path.closed else 0.0, leader=leader)
+        in_transition=_no_transition, period=path.length if path.closed else 0.0, leader=leader,
+        lateral=lambda S: {n: np.full(np.shape(S[n]), offs[n][1] if n in offs else 0.0) for n in S})
 
 
 def _switching(scenario: Scenario) -> TeamGeometry:
@@ -184,7 +196,8 @@ def _switching(scenario: Scenario) -> TeamGeometry:
     period = max((p.length for p in paths.values() if p.closed), default=0.0)
     return TeamGeometry("formation_switching", paths,
                         xi=lambda S: {n: S[n] - offs(n, S[n])[0] for n in S},
-                        slots=slots, in_transition=in_transition, period=period)
+                        slots=slots, in_transition=in_transition, period=period,
+                        lateral=lambda S: {n: offs(n, S[n])[1] for n in S})
 
 
 FORMATION_TOLERANCE_M = 0.05
@@ -298,4 +311,33 @@ def truth_metrics(trace, scenario: Scenario, series: TruthSeries | None = None) 
             out["formation_error_max_m"] = _f(fe[steady].max())
         if moving.any():
             out["formation_error_transition_max_m"] = _f(fe[moving].max())
+    return out
+
+
+def cross_track_series(trace, scenario: Scenario, geometry: TeamGeometry | None = None) -> dict[str, np.ndarray]:
+    """Cross-track error of each robot that has a path: |lateral offset of its true position
+    from its path - desired lateral offset| [m], on the simulator's ticks.
+
+    The lateral offset is (p - r(s)) . n(s) at the projection s of the true position; the
+    desired one is the robot's offset q (5.10) (zero for a robot on its path)."""
+    geo = geometry if geometry is not None else team_geometry(scenario)
+    paths = dict(geo.paths) if geo is not None else {r.name: scenario.paths[r.path] for r in scenario.robots if r.path}
+    S, P = {}, {}
+    for n, path in paths.items():
+        rt = trace.robots.get(n)
+        if rt is None or not len(rt.t):
+            continue
+        P[n] = np.asarray(rt.pose, dtype=float)[:, :2]
+        S[n] = track_coordinate(path, P[n])
+    if not S:
+        return {}
+    if geo is not None and geo.lateral is not None and (geo.leader is None or geo.leader in S):
+        q = geo.lateral(S)
+    else:
+        q = {n: np.zeros(len(S[n])) for n in S}
+    out = {}
+    for n in S:
+        x, y, th, _ = paths[n].frame(S[n])
+        lat = -(P[n][:, 0] - x) * np.sin(th) + (P[n][:, 1] - y) * np.cos(th)
+        out[n] = np.abs(lat - q[n])
     return out

@@ -5,13 +5,17 @@ in-process run (records kept in memory), so a run's figures are always explainab
 from its log. Keys are a public contract: add keys, never rename; a figure that does not
 apply to a scenario is ``null``.
 
-Definitions (errors are taken after ``run.settle_s``):
+Definitions (errors are taken after ``run.settle_s``; docs/metrics.md, M1-M6):
+- coordination, formation, cross-track and task figures come from the simulator's truth
+  and the scenario's geometry (:mod:`orchestrator.metrics_truth`,
+  :mod:`orchestrator.metrics_roles`), never from what a controller says about itself;
+  the controllers' own figures are kept as ``*_reported``;
 - path error: distance from the simulator's true position to the controller's reference
   point ``ref`` at the same instant; heading error: |wrap(theta - theta_ref)|;
   steps flagged ``in_transition`` are left out;
-- coordination error: max over robot pairs (all pairs, or graph edges with
-  ``[metrics] coordination_pairs = "edges"``) of |xi_i - xi_j| (modulo ``xi_period``),
-  with each robot's xi interpolated onto the simulator's ticks;
+- reported coordination error: max over robot pairs (all pairs, or graph edges with
+  ``[metrics] coordination_pairs = "edges"``) of the reported |xi_i - xi_j| (modulo
+  ``xi_period``), with each robot's xi interpolated onto the simulator's ticks;
 - min separation: smallest centre distance between two robots; a collision is the
   onset of an overlap of two robot discs, or of a disc with an obstacle.
 """

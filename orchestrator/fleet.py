@@ -59,6 +59,8 @@ class RunOptions:
     """Extra endpoints for the router to connect to (multi-host runs)."""
     listen: tuple[str, ...] = ()
     """Router listen endpoints (default: one free loopback port)."""
+    live_port: int | None = None
+    """Serve the run's Foxglove views on this WebSocket port while it runs (orchestrator/live.py)."""
 
 
 @dataclass
@@ -142,7 +144,15 @@ def run_fleet(scenario: Scenario, opts: RunOptions) -> RunOutcome:
                    "python": sys.version.split()[0]},
     }
     router = ZenohLink.open(SessionConfig(mode="router", listen=tuple(listen), connect=tuple(opts.connect)))
-    recorder = Recorder(out / "run.mcap", keys, metadata, scenario)
+    live = None
+    if opts.live_port is not None:
+        from .live import LiveViz
+        from .viz import TOPICS
+
+        live = LiveViz(opts.live_port)
+        live.advertise(TOPICS)
+        logger.info("live views on %s (Foxglove: Open connection -> Foxglove WebSocket)", live.url)
+    recorder = Recorder(out / "run.mcap", keys, metadata, scenario, live=live)
     router.subscribe_raw(keys.all, recorder.write)
     common = ["--run-id", opts.run_id, "--config", str(scen_path.resolve())]  # children run in DIR/logs
     for e in connect_for_children:
@@ -203,7 +213,10 @@ def run_fleet(scenario: Scenario, opts: RunOptions) -> RunOutcome:
         pids = {c.name: c.proc.pid for c in children}
         _stop(children)
         router.close()
+        recorder.add_process_logs(out / "logs")
         recorder.finish({"outcome": {"ok": str(ok), "reason": reason}})
+        if live is not None:
+            live.close()
     wall = time.monotonic() - wall0
     log = read_log(out / "run.mcap")
     stats = {r.proc: r for _, _, r in log.records if getattr(r, "TYPE", "") == "stats"}

@@ -63,7 +63,7 @@ class Recorder:
 
             self._viz = VizBuilder(scenario, keys)
             self._sinks = [McapVizSink(self._w)] + ([live] if live is not None else [])
-            self._emit(self._viz.static(), time.time_ns())
+            self._static = self._viz.static()  # written with the first record, at its time
 
     def _emit(self, msgs, now: int) -> None:
         """Hand Foxglove messages to every sink (the MCAP one under the writer's lock)."""
@@ -107,6 +107,9 @@ class Recorder:
                 self.end = rec
             if self._viz is not None:
                 with self._viz_lock:
+                    if self._static:
+                        self._emit(self._static, now)
+                        self._static = []
                     self._emit(self._viz.feed(key, rec), now)
 
     def add_process_logs(self, log_dir: pathlib.Path) -> int:

@@ -9,7 +9,9 @@ feeds it directly, so both run the exact same logic:
    dropped (Def. 10: the sender's position travels in the envelope, no oracle);
 3. the controller steps; an exception inside it is logged and counted and the robot
    stops for that step (it never kills the process);
-4. its outgoing messages become envelopes on the sender's keys.
+4. with ``[safety]`` on, the command passes the decentralised safety filter
+   (``copath.safety``) built from the positions of every accepted envelope;
+5. its outgoing messages become envelopes on the sender's keys.
 """
 
 from __future__ import annotations
@@ -23,6 +25,7 @@ import numpy as np
 
 from agent.controllers import build_controller
 from copath.control import Observation, PeerMessage, RobotContext
+from copath.safety import SafetyGuard
 from copath.scenario import Scenario
 from copath.wire.faults import FaultyInbox, LinkFaults
 from copath.wire.keys import Keys
@@ -97,10 +100,18 @@ class RobotRuntime:
         self.sensors = scenario.sensors
         self._angles = sensor_angles(scenario.sensors.count) if scenario.sensors.enabled else None
         self._cmd_size = spec.model.command_size
+        self.safety = (SafetyGuard(scenario.safety, name, {r.name: r.model for r in scenario.robots}, self.dt,
+                                   scenario.sensors.count if scenario.sensors.enabled else 0)
+                       if scenario.safety.enabled else None)
+        # fixed graph: the filter also reads the position in non-neighbours' broadcasts
+        self._overheard = (frozenset(scenario.robot_names) - {name} - set(spec.neighbours)
+                           if self.safety is not None and scenario.safety.overhear and self.neighbours is not None
+                           else frozenset())
 
     @property
     def subscriptions(self) -> list[str]:
-        return self.keys.peer_subscriptions(self.name, self.neighbours)
+        return self.keys.peer_subscriptions(self.name, self.neighbours) + [
+            self.keys.peer_broadcast(n) for n in sorted(self._overheard)]
 
     def missing(self, expect: dict[str, int] | None) -> dict[str, int]:
         """Senders (among those this robot listens to) whose messages have not all
@@ -120,6 +131,10 @@ class RobotRuntime:
         """Accept a peer envelope that arrived (before faults)."""
         if env.sender == self.name:
             return
+        if env.sender in self._overheard:  # for the safety filter only
+            self.counters.extra["overheard"] = self.counters.extra.get("overheard", 0) + 1
+            self.inbox.push(env.sender, env.stamp, env)
+            return
         self.counters.received += 1
         self.received_from[env.sender] = self.received_from.get(env.sender, 0) + 1
         if not self.inbox.push(env.sender, env.stamp, env):
@@ -135,6 +150,10 @@ class RobotRuntime:
             if self.comm_range > 0 and math.hypot(env.pos[0] - pose[0], env.pos[1] - pose[1]) > self.comm_range:
                 self.counters.out_of_range += 1
                 continue
+            if self.safety is not None:
+                self.safety.hear(env.sender, env.pos, env.stamp)
+                if env.sender in self._overheard:
+                    continue
             inbox.append(PeerMessage(env.sender, env.kind, env.stamp, now - env.stamp, env.payload, tuple(env.pos)))
         self.counters.delivered += len(inbox)
         ranges = None if obs.ranges is None else np.asarray(obs.ranges, dtype=float)
@@ -158,6 +177,12 @@ class RobotRuntime:
             self.counters.controller_errors += 1
             cmd, messages, telemetry = [0.0] * self._cmd_size, [], {"solver_ok": False}
         solve_ms = (time.perf_counter() - t0) * 1e3
+        if self.safety is not None:
+            t0 = time.perf_counter()
+            res = self.safety.apply(pose, cmd, now, ranges, self._angles)
+            cmd = [float(c) for c in res.command]
+            telemetry.update(safety_active=res.active, safety_change=res.change,
+                             safety_ms=(time.perf_counter() - t0) * 1e3)
         self.counters.steps += 1
         peers = []
         for m in messages:
@@ -180,4 +205,6 @@ class RobotRuntime:
     def closing_counters(self) -> dict:
         self.counters.dropped_by_faults = self.faults.dropped
         self.counters.partitioned = self.faults.partitioned
+        if self.safety is not None:
+            self.counters.extra.update(self.safety.counters())
         return self.counters.as_dict()

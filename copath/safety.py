@@ -109,7 +109,8 @@ class SafetyResult:
     active: bool
     """True when the nominal command violated a barrier and the QP was solved."""
     change: float
-    """Euclidean norm of the change of the command (0 when inactive)."""
+    """Norm of the change from the nominal command as the model would apply it (saturated), 0 when
+    inactive."""
     slack: float = 0.0
     """Slack sigma of the barriers (> 0: a barrier could not be met within the limits)."""
     min_barrier: float = math.inf
@@ -146,9 +147,13 @@ class SafetyFilter:
         The robot's own model (limits and radius).
     dt : float
         Control period [s]; gamma * dt must not exceed 1.
+    capacity : int
+        Number of barrier rows to build the QP for up front (neighbours + range readings);
+        more rows rebuild it once, larger.
     """
 
-    def __init__(self, config: SafetyConfig, model: OmniModel | UnicycleModel, dt: float) -> None:
+    def __init__(self, config: SafetyConfig, model: OmniModel | UnicycleModel, dt: float,
+                 capacity: int = 0) -> None:
         require(config.gamma * dt <= 1.0 + 1e-12, "safety.gamma", config.gamma,
                 f"must be <= 1/run.dt = {1.0 / dt:g} 1/s so a barrier cannot be overshot in one period")
         self.config = config
@@ -176,7 +181,24 @@ class SafetyFilter:
         else:
             self._C = np.array([[1.0, 0.0]])
             self._c = np.array([self._cap or 0.0])
-        self._solvers: dict[int, object] = {}
+        # constant parts of the QP: Hessian, limit and cap rows, slack bound
+        m = self.m
+        self._H = np.zeros((m + 1, m + 1))
+        self._H[:m, :m] = 2 * self._W
+        self._H[m, m] = 2 * config.slack_weight
+        rows_a, rows_l = [self._L], [self._lim]
+        if self._cap is not None:
+            rows_a.append(self._C)
+            rows_l.append(self._c)
+        self._fixed_a = np.hstack([np.vstack(rows_a), np.zeros((sum(len(r) for r in rows_l), 1))])
+        self._fixed_u = np.concatenate(rows_l)
+        self._fixed_l = -self._fixed_u
+        self._lbx = np.r_[np.full(m, -np.inf), 0.0]
+        self._ubx = np.full(m + 1, np.inf)
+        self._qp = None
+        self._rows = 0
+        if capacity:
+            self._solver(capacity)
 
     # -- geometry ----------------------------------------------------------------------
     def point_map(self, theta: float) -> np.ndarray:
@@ -239,44 +261,35 @@ class SafetyFilter:
         u, sigma, ok = self._solve(A, rhs, u_sat)
         if not ok:  # stopping satisfies every barrier with h >= 0
             u = np.zeros(self.m)
-        return SafetyResult(u, True, float(np.linalg.norm(u - u_nom)), sigma, h_min, ok)
+        return SafetyResult(u, True, float(np.linalg.norm(u - u_sat)), sigma, h_min, ok)
 
     def _solver(self, k: int):
-        """The conic for k barrier rows (built once per k; rows: limits, cap, barriers)."""
-        if k not in self._solvers:
+        """The conic for at least k barrier rows: rows are limits, speed cap, then a padded
+        block of barriers whose size only grows (built once per size, outside the control loop
+        when the capacity is given up front)."""
+        cap = max(k, 1)
+        if self._qp is None or self._rows < cap:
             import casadi as ca  # noqa: PLC0415  (only robots with a filter load CasADi)
 
+            self._rows = max(cap, 2 * self._rows)
             nv = self.m + 1
-            rows = len(self._lim) + (len(self._c) if self._cap is not None else 0) + k
-            self._solvers[k] = ca.conic(f"safety_qp_{k}", "daqp",
-                                        {"h": ca.Sparsity.dense(nv, nv), "a": ca.Sparsity.dense(rows, nv)},
-                                        {"error_on_fail": False})
-        return self._solvers[k]
+            rows = len(self._fixed_l) + self._rows
+            self._qp = ca.conic(f"safety_qp_{self._rows}", "daqp",
+                                {"h": ca.Sparsity.dense(nv, nv), "a": ca.Sparsity.dense(rows, nv)},
+                                {"error_on_fail": False})
+        return self._qp
 
     def _solve(self, A: np.ndarray, rhs: np.ndarray, u_ref: np.ndarray) -> tuple[np.ndarray, float, bool]:
         k, m = A.shape
-        rho = self.config.slack_weight
-        H = np.zeros((m + 1, m + 1))
-        H[:m, :m] = 2 * self._W
-        H[m, m] = 2 * rho
-        g = np.zeros(m + 1)
-        g[:m] = -2 * self._W @ u_ref
-        g[m] = rho
-        blocks = [np.hstack([self._L, np.zeros((len(self._lim), 1))])]
-        lba, uba = [-self._lim], [self._lim]
-        if self._cap is not None:
-            blocks.append(np.hstack([self._C, np.zeros((len(self._c), 1))]))
-            lba.append(-self._c)
-            uba.append(self._c)
-        blocks.append(np.hstack([A, np.ones((k, 1))]))
-        lba.append(rhs)
-        uba.append(np.full(k, np.inf))
-        lbx = np.r_[np.full(m, -np.inf), 0.0]
-        ubx = np.full(m + 1, np.inf)
-        sol = self._solver(k)(h=H, g=g, a=np.vstack(blocks), lba=np.concatenate(lba), uba=np.concatenate(uba),
-                              lbx=lbx, ubx=ubx)
+        qp = self._solver(k)
+        pad = self._rows - k
+        g = np.r_[-2 * self._W @ u_ref, self.config.slack_weight]
+        a = np.vstack([self._fixed_a, np.hstack([A, np.ones((k, 1))]), np.zeros((pad, m + 1))])
+        lba = np.r_[self._fixed_l, rhs, np.full(pad, -np.inf)]
+        uba = np.r_[self._fixed_u, np.full(k + pad, np.inf)]
+        sol = qp(h=self._H, g=g, a=a, lba=lba, uba=uba, lbx=self._lbx, ubx=self._ubx)
         x = np.asarray(sol["x"]).ravel()
-        ok = bool(self._solver(k).stats().get("success", False)) and bool(np.all(np.isfinite(x)))
+        ok = bool(qp.stats().get("success", False)) and bool(np.all(np.isfinite(x)))
         return x[:m], max(float(x[m]), 0.0), ok
 
 
@@ -296,12 +309,15 @@ class SafetyGuard:
         Every robot's model, for footprint radii and speed bounds.
     dt : float
         Control period [s].
+    sensor_count : int
+        Number of range readings per observation (0 without sensors).
     """
 
     def __init__(self, config: SafetyConfig, name: str, models: Mapping[str, OmniModel | UnicycleModel],
-                 dt: float) -> None:
+                 dt: float, sensor_count: int = 0) -> None:
         self.name = name
-        self.filter = SafetyFilter(config, models[name], dt)
+        rows = len(models) - 1 + (sensor_count if config.use_ranges else 0)
+        self.filter = SafetyFilter(config, models[name], dt, capacity=rows)
         cap = config.speed_max_mps
         self._bounds = {n: (m.radius, cap if cap is not None else max_speed(m)) for n, m in models.items()}
         self._heard: dict[str, tuple[float, float, float]] = {}

@@ -52,6 +52,9 @@ ROBOT_KEYS = (
     "cross_track_error_max_m",
     "cross_track_error_rms_m",
 ) + ESTIMATION_KEYS
+# the safety filter (copath.safety), from the runtime's safety_* telemetry; null when it is off
+SAFETY_KEYS = ("safety_interventions", "safety_change_max", "safety_ms_p50", "safety_ms_p99")
+ROBOT_KEYS = ROBOT_KEYS + SAFETY_KEYS
 FLEET_KEYS = (
     "coordination_error_max_m",
     "coordination_error_rms_m",
@@ -209,7 +212,19 @@ def _robot_metrics(rt: RobotTrace, settle: float, model_kind: str, missed: int) 
         # integral of the squared applied command over the run: sum |u|^2 dt
         dts = np.diff(rt.t, append=rt.t[-1] + (rt.t[-1] - rt.t[-2]))
         m["control_effort"] = _f(float(np.sum(np.sum(rt.command**2, axis=1) * dts)))
+    m.update(_safety_metrics(rt.telemetry))
     return m
+
+
+def _safety_metrics(telemetry: list[dict]) -> dict[str, Any]:
+    """Interventions of the safety filter (steps at which it changed the command), the largest
+    command change and its time per call [ms]; all null when the filter is off."""
+    ms = [d["safety_ms"] for d in telemetry if d.get("safety_ms") is not None]
+    if not ms:
+        return dict.fromkeys(SAFETY_KEYS)
+    changes = [d.get("safety_change") or 0.0 for d in telemetry if d.get("safety_active")]
+    return {"safety_interventions": len(changes), "safety_change_max": _f(max(changes, default=0.0)),
+            "safety_ms_p50": _f(np.percentile(ms, 50)), "safety_ms_p99": _f(np.percentile(ms, 99))}
 
 
 def _coordination_reported(trace: Trace, scenario: Scenario, settle: float):

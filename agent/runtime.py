@@ -25,11 +25,12 @@ import numpy as np
 
 from agent.controllers import build_controller
 from copath.control import Observation, PeerMessage, RobotContext
+from copath.estimation import PoseEKF, wrap
 from copath.safety import SafetyGuard
 from copath.scenario import Scenario
 from copath.wire.faults import FaultyInbox, LinkFaults
 from copath.wire.keys import Keys
-from copath.wire.messages import Command, Obs, PeerEnvelope, Telemetry, to_plain
+from copath.wire.messages import Command, Estimate, Obs, PeerEnvelope, Telemetry, to_plain
 
 logger = logging.getLogger(__name__)
 
@@ -46,6 +47,8 @@ class StepOutput:
     command: Command
     peers: list[tuple[str, PeerEnvelope]]
     telemetry: Telemetry
+    estimate: Estimate | None = None
+    """The pose estimate the controller saw (robots with a ``[sensing]`` estimator)."""
 
 
 @dataclass
@@ -77,20 +80,7 @@ class RobotRuntime:
         self.dt = scenario.run.dt
         self.comm_range = scenario.network.range_m
         self.neighbours = spec.neighbours if self.comm_range == 0 else None
-        ctx = RobotContext(
-            name=name,
-            index=scenario.robot_names.index(name),
-            model=spec.model,
-            paths=scenario.paths,
-            path=spec.path,
-            neighbours=spec.neighbours,
-            robots=scenario.robot_names,
-            dt=scenario.run.dt,
-            params=dict(spec.params),
-            seed=scenario.run.seed,
-            comm_range=self.comm_range,
-        )
-        self.controller = build_controller(spec.controller, ctx)
+        self.controller = build_controller(spec.controller, RobotContext.for_robot(scenario, name))
         self.faults = LinkFaults(scenario.network, scenario.run.seed, name)
         self.inbox = FaultyInbox(self.faults)
         self.counters = Counters()
@@ -100,6 +90,12 @@ class RobotRuntime:
         self.sensors = scenario.sensors
         self._angles = sensor_angles(scenario.sensors.count) if scenario.sensors.enabled else None
         self._cmd_size = spec.model.command_size
+        # [sensing]: the controller sees the EKF's estimate (or the raw reading without it)
+        self._profile = scenario.sensing.profile_for(name, spec.model.kind)
+        self._kind = spec.model.kind
+        self.ekf: PoseEKF | None = None
+        self._last_cmd = [0.0] * self._cmd_size
+        self._raw_pose: np.ndarray | None = None
         self.safety = (SafetyGuard(scenario.safety, name, {r.name: r.model for r in scenario.robots}, self.dt,
                                    scenario.sensors.count if scenario.sensors.enabled else 0)
                        if scenario.safety.enabled else None)
@@ -144,6 +140,9 @@ class RobotRuntime:
     def step(self, obs: Obs, now: float) -> StepOutput:
         """Run one control instant at controller time ``now`` with the latest observation."""
         pose = np.asarray(obs.pose, dtype=float)
+        estimate = None
+        if obs.meas is not None:
+            pose, estimate = self._estimate(obs, now, pose)
         inbox = []
         # a deterministic order whatever the arrival order (sums over neighbours stay bitwise equal)
         for env in sorted(self.inbox.pop_ready(now), key=lambda e: (e.stamp, e.sender, e.seq)):
@@ -154,7 +153,8 @@ class RobotRuntime:
                 self.safety.hear(env.sender, env.pos, env.stamp)
                 if env.sender in self._overheard:
                     continue
-            inbox.append(PeerMessage(env.sender, env.kind, env.stamp, now - env.stamp, env.payload, tuple(env.pos)))
+            inbox.append(PeerMessage(env.sender, env.kind, env.stamp, now - env.stamp, env.payload, tuple(env.pos),
+                                     None if env.cov is None else tuple(env.cov)))
         self.counters.delivered += len(inbox)
         ranges = None if obs.ranges is None else np.asarray(obs.ranges, dtype=float)
         observation = Observation(
@@ -188,7 +188,7 @@ class RobotRuntime:
         for m in messages:
             self.seq += 1
             env = PeerEnvelope(self.name, self.seq, float(now), m.kind, [float(pose[0]), float(pose[1])],
-                               to_plain(dict(m.payload)))
+                               to_plain(dict(m.payload)), None if self.ekf is None else self.ekf.position_cov)
             if m.to is None:
                 peers.append((self.keys.peer_broadcast(self.name), env))
                 self.sent["*"] += 1
@@ -196,11 +196,36 @@ class RobotRuntime:
                 for r in m.to:
                     peers.append((self.keys.peer_direct(self.name, r), env))
                     self.sent[r] = self.sent.get(r, 0) + 1
+        self._last_cmd = cmd
         return StepOutput(
             Command(obs.k, float(now), cmd, solve_ms, dict(self.sent)),
             peers,
             Telemetry(obs.k, float(now), to_plain(telemetry)),
+            estimate,
         )
+
+    def _estimate(self, obs: Obs, now: float, raw: np.ndarray) -> tuple[np.ndarray, Estimate | None]:
+        """The pose the controller sees under ``[sensing]``: the EKF's estimate at the
+        observation's time, predicted to ``now`` plus ``solve_time_s`` with the last
+        command (solve-time compensation); without the estimator, the raw reading with
+        its heading unwrapped."""
+        cfg = self.scenario.sensing
+        if not cfg.estimator:
+            if self._raw_pose is not None:
+                raw = raw.copy()
+                raw[2] = self._raw_pose[2] + wrap(raw[2] - self._raw_pose[2])
+            self._raw_pose = raw
+            return raw, None
+        if self.ekf is None:
+            self.ekf = PoseEKF(self._profile, self._kind, cfg.filter, obs.t, raw)
+        m = obs.meas
+        res = self.ekf.step(obs.t, m.get("odom", ()), m.get("fixes", ()), m.get("headings", ()))
+        ahead = (now - obs.t) + cfg.solve_time_s
+        pose = self.ekf.predict_ahead(ahead, self._last_cmd) if ahead > 0 else res.pose.copy()
+        rec = Estimate(obs.k, float(obs.t), [float(v) for v in res.x], res.P.tolist(), [float(v) for v in res.nis],
+                       [int(v) for v in res.nis_dof],
+                       {"accepted": res.accepted, "rejected": res.rejected, "late": res.late})
+        return pose, rec
 
     def closing_counters(self) -> dict:
         self.counters.dropped_by_faults = self.faults.dropped

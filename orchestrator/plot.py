@@ -18,6 +18,9 @@ file                content                                                     
 ``solve_times.png`` controller solve time per step                                an MPC
 ``faults.png``      messages dropped by the fault layer over time, partitions     faults
                     shaded
+``estimation.png``  each robot's pose estimate against the truth: position and    [sensing]
+                    heading error with their 3-sigma bounds, NEES                 estimator
+                    (orchestrator/metrics_estimation.py, docs/sensing.md)
 ==================  ===========================================================  ==========
 
 Errors follow the definitions of ``metrics.json`` (orchestrator/metrics.py): the path
@@ -53,6 +56,7 @@ from copath.wire.messages import Command, PeerEnvelope, Truth  # noqa: E402
 
 from .mcaplog import read_log  # noqa: E402
 from .metrics import Trace, trace_from_records  # noqa: E402
+from .metrics_estimation import estimate_series  # noqa: E402
 
 __all__ = ["RunView", "load_run", "FAMILIES", "applicable", "plot_run", "animate_run"]
 
@@ -425,6 +429,37 @@ def fig_faults(view: RunView):
     return fig
 
 
+def fig_estimation(view: RunView):
+    """Estimate against truth: |p_hat - p| and |theta_hat - theta| with the filter's own
+    3-sigma bounds, and the NEES against the 95 % band of chi2(3)."""
+    from scipy.stats import chi2  # noqa: PLC0415
+
+    fig, (a1, a2, a3) = plt.subplots(3, 1, figsize=(8, 7), sharex=True)
+    for n, rt in view.trace.robots.items():
+        s = estimate_series(view.trace.estimates.get(n), rt.pose_at)
+        if s is None:
+            continue
+        c = view.colors.get(n)
+        err, cov = s["err"], s["cov"]
+        a1.plot(s["t"], np.hypot(err[:, 0], err[:, 1]), color=c, lw=0.8, label=n)
+        a1.plot(s["t"], 3 * np.sqrt(cov[:, 0, 0] + cov[:, 1, 1]), color=c, lw=0.6, ls="--")
+        a2.plot(s["t"], np.abs(err[:, 2]), color=c, lw=0.8)
+        a2.plot(s["t"], 3 * np.sqrt(cov[:, 2, 2]), color=c, lw=0.6, ls="--")
+        nees = np.einsum("ni,ni->n", err, np.linalg.solve(cov, err[:, :, None])[:, :, 0])
+        a3.semilogy(s["t"], np.maximum(nees, 1e-3), color=c, lw=0.6)
+    lo, hi = chi2.ppf([0.025, 0.975], 3)
+    a3.axhspan(lo, hi, color="0.9", zorder=0)
+    a1.set_ylabel("position error [m]")
+    a2.set_ylabel("heading error [rad]")
+    a3.set_ylabel("NEES")
+    a3.set_xlabel("t [s]")
+    for a in (a1, a2, a3):
+        a.grid(True, lw=0.3)
+    a1.legend(fontsize=7, ncol=4)
+    a1.set_title("estimate against truth; dashed: the filter's 3-sigma; grey: 95 % band of chi2(3)", fontsize=9)
+    return fig
+
+
 def _has_telemetry(view: RunView, name: str) -> bool:
     return any(isinstance(d.get(name), (int, float, list)) for rt in view.trace.robots.values() for d in rt.telemetry)
 
@@ -441,6 +476,7 @@ FAMILIES: dict[str, tuple[Callable[[RunView], bool], Callable[[RunView], Any]]] 
     "coordination": (_has_team, fig_coordination),
     "solve_times": (lambda v: any(np.any(ms > 0) for _, ms in v.solve.values()), fig_solve_times),
     "faults": (lambda v: drops(v) is not None, fig_faults),
+    "estimation": (lambda v: any(v.trace.estimates.values()), fig_estimation),
 }
 """Figure family -> (applies to this run?, draw)."""
 

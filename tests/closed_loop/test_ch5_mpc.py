@@ -36,7 +36,9 @@ def _robots(m):
 
 # -- E5.2 / E5.3: distributed MPC ---------------------------------------------------------
 
-DMPC_RUN = {"duration_s": 24.0, "settle_s": 12.0}
+# settle_s as in the scenarios: the coordination error is measured on the true positions,
+# which still lag their virtual vehicles by about 1 cm more than the reported xi at 12 s (E5.3)
+DMPC_RUN = {"duration_s": 24.0, "settle_s": 15.0}
 
 
 @pytest.fixture(scope="module")

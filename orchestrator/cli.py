@@ -4,13 +4,14 @@ Subcommands (``copath --version``; ``--log-level LEVEL`` before or after the sub
 
     copath run CONFIG [--out DIR] [--set KEY=VALUE]... [--duration S] [--clock lockstep|realtime]
                       [--seed N] [--delay MS] [--jitter MS] [--loss P] [--run-id ID] [--inprocess]
-                      [--connect ENDPOINT] [--listen ENDPOINT] [--check] [--no-plots]
+                      [--connect ENDPOINT] [--listen ENDPOINT] [--check] [--no-plots] [--live [PORT]]
     copath sweep CONFIG [--seeds 1-10] [--set KEY=V1,V2,...]... [--inprocess] [--jobs N] [--out DIR]
     copath agent --run-id ID --robot NAME --config FILE [--connect ENDPOINT]
     copath sim   --run-id ID --config FILE [--connect ENDPOINT]
     copath info RUN.mcap [--json]
     copath metrics RUN.mcap [--out metrics.json]
-    copath replay RUN.mcap [--speed X] [--run-id ID] [--connect ENDPOINT]
+    copath replay RUN.mcap [--speed X] [--run-id ID] [--connect ENDPOINT] [--live [PORT]]
+    copath plot RUN.mcap [--out DIR] [--animate]
     copath scenarios [--json]
     copath bench solve|dmpc ...
 
@@ -183,6 +184,9 @@ def _cmd_run(args: argparse.Namespace) -> int:
         if args.inprocess and scenario.run.clock != "lockstep":
             raise ConfigError(f"run.clock = {scenario.run.clock!r} is not allowed with --inprocess; "
                               "in-process runs are lockstep only")
+        if args.inprocess and args.live is not None:
+            raise ConfigError(f"--live = {args.live} is not allowed with --inprocess; live views are served "
+                              "by fleet runs and by copath replay --live")
     except (ConfigError, ValueError) as exc:
         _print_errors("copath run", args.config, exc)
         return EXIT_INPUT
@@ -205,9 +209,12 @@ def _cmd_run(args: argparse.Namespace) -> int:
         rc = _finish(args, scenario, res.metrics)
         print(f"metrics: {out / 'metrics.json'} (in-process run: no MCAP log)")
         return rc
+    if args.live is not None:
+        print(f"live views: ws://localhost:{args.live} (Foxglove: Open connection -> Foxglove WebSocket)",
+              file=sys.stderr)
     outcome = run_fleet(scenario, RunOptions(out_dir=out, run_id=run_id, progress=not args.quiet,
                                              wall_timeout_s=args.wall_timeout, connect=tuple(args.connect),
-                                             listen=tuple(args.listen)))
+                                             listen=tuple(args.listen), live_port=args.live))
     rc = _finish(args, scenario, outcome.metrics)
     print(f"log: {out / 'run.mcap'}\nmetrics: {out / 'metrics.json'}")
     if not args.no_plots and (out / "run.mcap").is_file():
@@ -336,16 +343,51 @@ def _cmd_metrics(args: argparse.Namespace) -> int:
 
 
 def _cmd_replay(args: argparse.Namespace) -> int:
+    import threading
+
     from .replay import replay
 
+    live = feeder = None
+    stop = threading.Event()
     try:
+        if args.live is not None:  # the log's Foxglove views, served while it replays
+            from .live import LiveViz, serve_log
+            from .viz import TOPICS
+
+            if not pathlib.Path(args.log).is_file():
+                raise FileNotFoundError(f"run log {args.log!r} does not exist")
+            live = LiveViz(args.live)
+            live.advertise(TOPICS)
+            print(f"live views: {live.url} (Foxglove: Open connection -> Foxglove WebSocket)", file=sys.stderr)
+            feeder = threading.Thread(target=serve_log, args=(args.log, live), daemon=True,
+                                      kwargs={"speed": args.speed, "stop": stop})
+            feeder.start()
         res = replay(args.log, speed=args.speed, run_id=args.run_id, connect=tuple(args.connect),
                      listen=tuple(args.listen),
                      announce=lambda e: print(f"replaying {args.log} on {e}", file=sys.stderr, flush=True))
     except (FileNotFoundError, ValueError) as exc:
         print(f"copath replay: {exc}", file=sys.stderr)
         return 2
+    finally:
+        if feeder is not None:
+            feeder.join(timeout=5.0)
+            stop.set()
+        if live is not None:
+            live.close()
     print(f"published {res.published} messages over {res.duration_s:.2f} s on {res.endpoint}")
+    return 0
+
+
+def _cmd_plot(args: argparse.Namespace) -> int:
+    from .plot import plot_run
+
+    try:
+        files = plot_run(args.log, args.out, animate=args.animate, progress=True)
+    except (FileNotFoundError, ValueError) as exc:
+        print(f"copath plot: {exc}", file=sys.stderr)
+        return EXIT_INPUT
+    for f in files:
+        print(f)
     return 0
 
 
@@ -415,6 +457,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="endpoint the run's router listens on [a free loopback port], e.g. tcp/0.0.0.0:7447")
     r.add_argument("--check", action="store_true", help=f"exit {EXIT_TARGETS} when a target of [targets] is missed")
     r.add_argument("--no-plots", action="store_true", help="do not write figures into the run directory")
+    r.add_argument("--live", type=int, nargs="?", const=8765, metavar="PORT",
+                   help="serve live Foxglove views on ws://localhost:PORT while the fleet runs [8765]")
     r.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     sw = sub.add_parser("sweep", help="run the product of settings and seeds; one table and plots", parents=[common])
     sw.add_argument("config", help="scenario file, bundled file stem or experiment id")
@@ -443,6 +487,12 @@ def build_parser() -> argparse.ArgumentParser:
     rp.add_argument("--run-id", help="publish under this run id instead of the recorded one")
     rp.add_argument("-e", "--connect", action="append", default=[], metavar="ENDPOINT")
     rp.add_argument("-l", "--listen", action="append", default=[], metavar="ENDPOINT")
+    rp.add_argument("--live", type=int, nargs="?", const=8765, metavar="PORT",
+                    help="serve the log's Foxglove views on ws://localhost:PORT while it replays [8765]")
+    pl = sub.add_parser("plot", help="figures of a run from its log (PNG; --animate: GIF or MP4)", parents=[common])
+    pl.add_argument("log")
+    pl.add_argument("--out", help="output directory [the log's directory]")
+    pl.add_argument("--animate", action="store_true", help="also write an animation of the run")
     sc = sub.add_parser("scenarios", help="list the bundled scenarios", parents=[common])
     sc.add_argument("--json", action="store_true")
     v = sub.add_parser("validate", help="check scenario files (controller parameters included) and print "
@@ -472,7 +522,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     logging.getLogger().setLevel(level)
     if bench:
         return _cmd_bench(args, rest)
-    handlers = {"run": _cmd_run, "sweep": _cmd_sweep, "info": _cmd_info, "metrics": _cmd_metrics, "replay": _cmd_replay, "scenarios": _cmd_scenarios,
+    handlers = {"plot": _cmd_plot, "run": _cmd_run, "sweep": _cmd_sweep, "info": _cmd_info, "metrics": _cmd_metrics, "replay": _cmd_replay, "scenarios": _cmd_scenarios,
                 "validate": _cmd_validate, "controllers": _cmd_controllers}
     return handlers[args.command](args)
 

@@ -1,0 +1,96 @@
+"""A plain (non-editable) install works from any directory: the wheel carries every bundled
+scenario as package data, and ``copath scenarios`` / ``copath run e5.5`` / ``copath info``
+run from a fresh virtual environment outside the checkout.
+
+The venv sees the machine's site-packages for the heavy dependencies (Zenoh, CasADi),
+but copath itself comes only from the wheel: the test checks where it is imported from.
+"""
+
+from __future__ import annotations
+
+import os
+import pathlib
+import signal
+import subprocess
+import sys
+import zipfile
+
+import pytest
+
+pytestmark = pytest.mark.integration
+
+REPO = pathlib.Path(__file__).resolve().parents[2]
+NETWORK_HINTS = ("NewConnectionError", "Temporary failure in name resolution", "Could not find a version",
+                 "No matching distribution", "Network is unreachable")
+
+
+def _run(argv: list[str], cwd: pathlib.Path, timeout: float, env: dict | None = None) -> subprocess.CompletedProcess:
+    """Run a command in its own process group; the whole group is killed on timeout."""
+    proc = subprocess.Popen(argv, cwd=str(cwd), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True, env=env)
+    try:
+        out, err = proc.communicate(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        os.killpg(proc.pid, signal.SIGKILL)
+        out, err = proc.communicate()
+        pytest.fail(f"{' '.join(argv)} timed out after {timeout} s\n{out}\n{err}")
+    finally:
+        try:
+            os.killpg(proc.pid, signal.SIGKILL)  # stragglers of the group, if any
+        except ProcessLookupError:
+            pass
+    return subprocess.CompletedProcess(argv, proc.returncode, out, err)
+
+
+@pytest.fixture(scope="module")
+def wheel(tmp_path_factory) -> pathlib.Path:
+    out = tmp_path_factory.mktemp("wheel")
+    res = _run([sys.executable, "-m", "pip", "wheel", "--no-deps", "-q", "-w", str(out), str(REPO)], out, 600)
+    if res.returncode != 0:
+        if any(h in res.stderr for h in NETWORK_HINTS):
+            pytest.skip(f"cannot fetch the build backend: {res.stderr.strip().splitlines()[-1]}")
+        pytest.fail(f"building the wheel failed:\n{res.stdout}\n{res.stderr}")
+    (whl,) = out.glob("copath-*.whl")
+    return whl
+
+
+def test_wheel_carries_every_bundled_scenario(wheel):
+    names = set(zipfile.ZipFile(wheel).namelist())
+    configs = REPO / "configs"
+    expected = {f"copath_configs/{p.relative_to(configs).as_posix()}" for p in configs.rglob("*")
+                if p.is_file() and p.suffix in (".toml", ".csv", ".json")}
+    assert expected and expected <= names, sorted(expected - names)
+    for pkg in ("copath", "agent", "sim", "orchestrator", "copath_configs"):
+        assert f"{pkg}/__init__.py" in names
+    assert not any(n.startswith(("tests/", "configs/")) for n in names)
+
+
+def test_plain_install_runs_a_bundled_scenario_from_another_directory(wheel, tmp_path):
+    venv = tmp_path / "venv"
+    res = _run([sys.executable, "-m", "venv", "--system-site-packages", str(venv)], tmp_path, 120)
+    assert res.returncode == 0, res.stderr
+    bin_ = venv / "bin"
+    res = _run([str(bin_ / "python"), "-m", "pip", "install", "--no-deps", "--no-index", "-q", str(wheel)], tmp_path, 300)
+    assert res.returncode == 0, res.stderr
+    work = tmp_path / "elsewhere"
+    work.mkdir()
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
+    where = _run([str(bin_ / "python"), "-c", "import copath, orchestrator, copath_configs as c; "
+                  "print(copath.__file__); print(orchestrator.__file__); print(c.__file__)"], work, 60, env)
+    assert where.returncode == 0, where.stderr
+    assert all(str(venv) in line for line in where.stdout.split()), where.stdout
+
+    res = _run([str(bin_ / "copath"), "scenarios"], work, 120, env)
+    assert res.returncode == 0, res.stderr
+    assert "e5.5-column-lemniscate" in res.stdout and str(venv) in res.stdout
+
+    res = _run([str(bin_ / "copath"), "run", "e5.5", "--set", "run.duration_s=3", "--set", "run.settle_s=1",
+                "--set", "network.loss=0.1", "--out", "out", "-q", "--no-plots"], work, 400, env)
+    assert res.returncode == 0, f"{res.stdout}\n{res.stderr}"
+    assert (work / "out" / "run.mcap").is_file() and (work / "out" / "metrics.json").is_file()
+    assert "targets (" in res.stdout
+
+    info = _run([str(bin_ / "copath"), "info", str(work / "out" / "run.mcap")], work, 120, env)
+    assert info.returncode == 0, info.stderr
+    assert "Seed:" in info.stdout and "network.loss=0.1" in info.stdout
+    assert "Sim time:     3.00 s" in info.stdout and "coordination_error_max_m=" in info.stdout

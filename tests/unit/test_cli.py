@@ -1,0 +1,190 @@
+"""The command line driven in-process: scenario look-up, --set, targets and --check,
+progress, sweeps, --version and --log-level (orchestrator/cli.py, api.py, sweep.py)."""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+
+import pytest
+
+from copath.config import ConfigError
+from copath.targets import TARGETS, Target, grade, parse_targets
+from orchestrator import api, sweep
+from orchestrator.cli import main as copath
+from orchestrator.metrics import METRIC_KEYS
+from orchestrator.progress import Progress
+
+SHORT = ["--set", "run.duration_s=3", "--set", "run.settle_s=1", "-q"]
+
+
+# --- finding scenarios ---
+
+def test_every_bundled_scenario_is_found_by_stem_and_unique_experiment_id():
+    bundled = api.bundled_scenarios()
+    assert len(bundled) >= 20
+    by_exp: dict[str, list[str]] = {}
+    for b in bundled:
+        assert api.find_scenario(b.stem) == b.path
+        by_exp.setdefault(b.experiment, []).append(b.stem)
+    for exp, stems in by_exp.items():
+        if exp is not None and len(stems) == 1:
+            assert api.find_scenario(exp).stem == stems[0]
+            assert api.find_scenario(exp.upper()).stem == stems[0]
+
+
+def test_an_experiment_with_several_scenarios_lists_them():
+    with pytest.raises(ConfigError) as e:
+        api.find_scenario("e4.4")
+    msg = str(e.value)
+    assert "e4.4" in msg and msg.count("e4.4-unicycle-nmpc") == 3
+
+
+def test_an_unknown_scenario_names_what_is_allowed(tmp_path):
+    with pytest.raises(ConfigError, match=r"scenario = 'e9\.9' is not allowed;.*e5\.5"):
+        api.find_scenario("e9.9")
+    with pytest.raises(ConfigError, match="does not exist"):
+        api.find_scenario(str(tmp_path / "missing.toml"))
+
+
+def test_scenarios_lists_every_bundled_file(capsys):
+    assert copath(["scenarios", "--json"]) == 0
+    rows = json.loads(capsys.readouterr().out)
+    assert {r["stem"] for r in rows} == {b.stem for b in api.bundled_scenarios()}
+    assert all(r["error"] is None for r in rows), [r for r in rows if r["error"]]
+
+
+# --- overrides ---
+
+def test_set_values_are_toml_literals_applied_anywhere():
+    s = api.load("e5.5", ["network.loss=0.1", "run.clock=realtime", "robots.r2.pose=[2.2, 0.7, 2.1]",
+                          "robots[0].controller.s_d=1.4", 'title="changed"'])
+    assert s.network.loss == 0.1 and s.run.clock == "realtime" and s.title == "changed"
+    assert s.robot("r2").pose == (2.2, 0.7, 2.1)
+    assert s.robot("r1").params["s_d"] == 1.4
+
+
+@pytest.mark.parametrize("item, needle", [
+    ("network.loss=1.5", "network.loss = 1.5 is not allowed; must be a probability"),
+    ("network.los=0.1", "network.los = 0.1 is not allowed; allowed keys"),
+    ("controller.k_one=1", "controller.k_one = 1 is not allowed"),
+    ("robots.r9.pose=[0,0,0]", "'r9' is not allowed"),
+    ("run.duration_s", "expected key.path=value"),
+])
+def test_a_bad_set_names_key_value_and_rule(item, needle, capsys, tmp_path):
+    assert copath(["run", "e5.5", "--inprocess", "--out", str(tmp_path), "--set", item]) == 2
+    assert needle in capsys.readouterr().err
+    assert not (tmp_path / "metrics.json").exists()
+
+
+# --- runs, targets, --check ---
+
+def test_run_by_experiment_id_inprocess_writes_metrics_and_shows_progress(tmp_path, capsys):
+    assert copath(["run", "e5.5", "--inprocess", "--out", str(tmp_path), *SHORT[:-1]]) == 0
+    m = json.loads((tmp_path / "metrics.json").read_text())
+    assert m["scenario"] == "e5.5-column-lemniscate" and m["sim_time_s"] == pytest.approx(3.0)
+    err = capsys.readouterr().err
+    assert "3.0/3.0 s sim" in err and "real time" in err and "msg/s" in err and "ETA" in err
+
+
+def test_check_fails_on_a_missed_target_and_passes_a_met_one(tmp_path, capsys):
+    args = ["run", "e5.5", "--inprocess", "--out", str(tmp_path), *SHORT]
+    assert copath([*args, "--set", "targets={collisions = 0, coordination_error_max_m = 1e-9}", "--check"]) == 3
+    out = capsys.readouterr()
+    assert "PASS  collisions" in out.out and "MISS  coordination_error_max_m" in out.out
+    assert "coordination_error_max_m" in out.err
+    # without --check a missed target is reported, not an error
+    assert copath([*args, "--set", "targets.coordination_error_max_m=1e-9"]) == 0
+    assert copath([*args, "--set", "targets={coordination_error_max_m = 10.0}", "--check"]) == 0
+    assert "targets (1/1 met)" in capsys.readouterr().out
+
+
+def test_targets_are_validated_against_metric_keys():
+    with pytest.raises(ConfigError, match=r"targets\.coordination_eror_m = 0\.1 is not allowed; allowed metric keys"):
+        parse_targets({"coordination_eror_m": 0.1})
+    with pytest.raises(ConfigError, match="expected a finite number"):
+        parse_targets({"collisions": "none"})
+    known = set(METRIC_KEYS["robots"]) | set(METRIC_KEYS["fleet"])
+    assert set(TARGETS) <= known
+    for key, (scope, _) in TARGETS.items():
+        assert key in METRIC_KEYS[scope]
+
+
+def test_grade_uses_the_worst_robot_and_the_sense_of_each_metric():
+    metrics = {"robots": {"a": {"path_error_max_m": 0.05}, "b": {"path_error_max_m": 0.2}},
+               "fleet": {"min_separation_m": 0.3, "tasks_completed": None}}
+    r = grade((Target("path_error_max_m", 0.1), Target("min_separation_m", 0.25), Target("tasks_completed", 1)),
+              metrics)
+    assert (r[0].passed, r[0].value, r[0].worst) == (False, 0.2, "b")
+    assert r[1].passed and r[1].value == 0.3
+    assert not r[2].passed and r[2].value is None  # not measured is not met
+
+
+def test_every_bundled_scenario_has_targets():
+    for b in api.bundled_scenarios():
+        assert api.load(b.path).targets, f"{b.stem} has no [targets]"
+
+
+# --- sweep ---
+
+def test_seeds_and_axes_parse():
+    assert sweep.parse_seeds("1-3,7") == [1, 2, 3, 7]
+    with pytest.raises(ConfigError, match="--seeds"):
+        sweep.parse_seeds("1-x")
+    axes = sweep.parse_axes(["network.loss=0,0.1,0.2", "noise.pose_std=[0,0,0],[0.01,0.01,0]"])
+    assert axes == [("network.loss", [0, 0.1, 0.2]), ("noise.pose_std", [[0, 0, 0], [0.01, 0.01, 0]])]
+    assert len(sweep.plan(axes, [1, 2, 3])) == 18
+    with pytest.raises(ConfigError, match="--seeds"):
+        sweep.parse_axes(["run.seed=1,2"])
+
+
+def test_sweep_inprocess_writes_table_summary_and_plots(tmp_path, capsys):
+    rc = copath(["sweep", "e5.5", "--inprocess", "--jobs", "1", "--seeds", "1-2", "--set", "network.loss=0,0.3",
+                 "--set", "run.duration_s=3", "--set", "run.settle_s=1", "--out", str(tmp_path), "-q"])
+    assert rc == 0
+    rows = list(csv.DictReader((tmp_path / "sweep.csv").open()))
+    assert len(rows) == 4
+    assert [r["network.loss"] for r in rows] == ["0", "0", "0.3", "0.3"]
+    assert [r["run.seed"] for r in rows] == ["1", "2", "1", "2"]
+    assert all(r["ok"] == "True" for r in rows)
+    dropped = {r["network.loss"]: float(r["messages_dropped_by_faults"]) for r in rows}
+    assert dropped["0"] == 0 and dropped["0.3"] > 0  # the faults were applied
+    out = capsys.readouterr().out
+    assert "mean/worst" in out and (tmp_path / "summary.txt").read_text().strip() in out
+    assert (tmp_path / "sweep-coordination_error_max_m.png").stat().st_size > 1000
+
+
+def test_sweep_rejects_a_bad_value_before_running(tmp_path, capsys):
+    assert copath(["sweep", "e5.5", "--inprocess", "--set", "network.loss=0,2", "--out", str(tmp_path)]) == 2
+    assert "network.loss = 2" in capsys.readouterr().err
+    assert not (tmp_path / "sweep.csv").exists()
+
+
+# --- progress ---
+
+def test_progress_reports_rate_real_time_factor_and_eta():
+    buf = io.StringIO()
+    p = Progress(10.0, stream=buf, interval_s=0.01)
+    assert "starting" in p.line()
+    p.update(0.0, 0)
+    p._first_tick = p.t0 - 1.0  # pretend 1 s of running
+    p.update(2.0, 100)
+    f = p.figures()
+    assert f["rtf"] == pytest.approx(2.0, rel=0.2)
+    assert f["eta"] == pytest.approx(4.0, rel=0.2)
+    p.update(5.0, 300)
+    assert "5.0/10.0 s sim" in buf.getvalue()  # not a terminal: one line per tenth
+
+
+# --- version and logging ---
+
+def test_version_and_log_level(capsys, tmp_path):
+    with pytest.raises(SystemExit) as e:
+        copath(["--version"])
+    assert e.value.code == 0 and capsys.readouterr().out.startswith("copath ")
+    assert copath(["--log-level", "debug", "scenarios", "--json"]) == 0
+    assert copath(["scenarios", "--log-level", "info", "--json"]) == 0
+    with pytest.raises(SystemExit):
+        copath(["--log-level", "loud", "scenarios"])
+

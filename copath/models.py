@@ -3,7 +3,7 @@
 - Omnidirectional robot (3.1) with three Swedish wheels and the wheel map (3.2);
   body velocities (u, v, omega), wheel rim speeds limited by qdot_max.
 - Unicycle (3.3) with (v, omega) limits and the curvature-preserving velocity
-  scaling of SPEC section 1.3.
+  scaling of Sec. 5.5.3.
 
 Commands are body-frame velocities: omni ``(u, v, omega)``, unicycle ``(v, omega)``.
 Poses are ``(x, y, theta)`` in the world frame.
@@ -40,7 +40,7 @@ def rotation_speed_limit(omega, qdot_max: float = 1.9, L_w: float = 0.195):
     """Translational speed bound r(omega) of (4.17)-(4.18): qdot_max - L_w |omega|.
 
     (4.18) prints r = (9.7436 - |omega|) / 5.1283, which is the same line since
-    9.7436 = qdot_max / L_w and 5.1283 = 1 / L_w (SPEC 1.2, derived).
+    9.7436 = qdot_max / L_w and 5.1283 = 1 / L_w (docs/derivations.md, D2).
     """
     return np.maximum(0.0, qdot_max - L_w * np.abs(omega))
 
@@ -93,7 +93,7 @@ class OmniModel:
         return self.M @ np.asarray(cmd, dtype=float).reshape(3)
 
     def world_wheel_matrix(self, theta: float) -> np.ndarray:
-        """J(theta) with qdot = J(theta) [xdot, ydot, omega] (SPEC 1.2, rows of (4.11))."""
+        """J(theta) with qdot = J(theta) [xdot, ydot, omega] (docs/derivations.md, D1; rows of (4.11))."""
         d = self.delta
         return np.array(
             [
@@ -141,7 +141,7 @@ class OmniModel:
 
 
 def scale_velocities(v: float, omega: float, v_max: float, omega_max: float) -> tuple[float, float]:
-    """Curvature-preserving scaling (SPEC 1.3): divide (v, omega) by
+    """Curvature-preserving scaling (Sec. 5.5.3): divide (v, omega) by
     sigma = max(1, |v|/v_max, |omega|/omega_max)."""
     sigma = max(1.0, abs(v) / v_max, abs(omega) / omega_max)
     return v / sigma, omega / sigma

@@ -1,4 +1,4 @@
-"""Reference paths re-parameterised by arc length (SPEC section 0, "Path object").
+"""Reference paths re-parameterised by arc length (docs/conventions.md, C2).
 
 Every reference curve of the dissertation is "numerically parameterized by the path
 length s". A :class:`Path` wraps a parametric curve r(phi) and exposes, for any arc
@@ -45,7 +45,7 @@ __all__ = [
 
 
 def wrap_to_pi(a):
-    """Wrap angles to (-pi, pi] with atan2(sin, cos) (SPEC section 0)."""
+    """Wrap angles to (-pi, pi] with atan2(sin, cos) (docs/conventions.md, C1)."""
     a = np.asarray(a, dtype=float)
     out = np.arctan2(np.sin(a), np.cos(a))
     return float(out) if out.ndim == 0 else out
@@ -190,7 +190,7 @@ class Path:
         return float(th[0]) if scalar else th
 
     def kappa(self, s):
-        """Signed curvature at s (Eq. in SPEC section 0); zero beyond open ends."""
+        """Signed curvature at s (docs/conventions.md, C1); zero beyond open ends."""
         scalar = np.ndim(s) == 0
         s_in, _, extra = self._split(s)
         k = self._kappa_phi(self._phi(s_in))
@@ -303,7 +303,7 @@ class Path:
 
         Built once per path (B-spline interpolants on a grid of ``grid_step``), and
         evaluated at ``fmod(s, length)`` for closed paths so s may be a symbolic
-        state that grows without bound (SPEC section 0). ``theta`` is continuous
+        state that grows without bound (docs/conventions.md, C2). ``theta`` is continuous
         within one lap; wrap angle differences with atan2(sin, cos).
         """
         if self._cas is not None:

@@ -7,7 +7,7 @@ connected graph (Theorem 8). The unicycle tracks the virtual vehicle with (5.39)
 and the transient heading shaping delta(y_e) of [211].
 
 The reusable pieces (errors (5.33), the tracking law (5.39)-(5.40) with the closed-form
-delta-dot of SPEC 2(f) note 1, the consensus acceleration (5.42)) are module functions so
+delta-dot of docs/ambiguities.md, A18, the consensus acceleration (5.42)) are module functions so
 other controllers (heterogeneous team, formation switching) call them instead of
 copying them.
 """
@@ -20,7 +20,7 @@ from typing import Sequence
 
 import numpy as np
 
-from copath.config import from_table, require
+from copath.config import require
 from copath.paths import wrap_to_pi
 
 from copath.control import controller, LatestMessages, Observation, Outgoing, PeerMessage, RobotContext, StepResult
@@ -87,7 +87,7 @@ class ConsensusConfig(ConsensusGains):
     s0: float | None = None
     """Initial path coordinate [m]; default: projection of the first pose onto the path."""
     extrapolate: bool = True
-    """Compensate neighbour messages for their age: s_j + sdot_j * age (SPEC 2(f) note 4)."""
+    """Compensate neighbour messages for their age: s_j + sdot_j * age (docs/measurements.md, M15)."""
     stale_after_s: float = 2.0
     """Neighbour information older than this is ignored [s]."""
 
@@ -135,7 +135,7 @@ def tracking_law(
     """Unicycle tracking law (5.39)-(5.40) of a virtual vehicle moving at sdot.
 
     Returns ``(v, omega, delta)``. delta-dot = c y_e-dot depends on omega through (5.34),
-    an algebraic loop solved in closed form (SPEC 2(f) note 1):
+    an algebraic loop solved in closed form (docs/ambiguities.md, A18):
     omega = (A - c sdot sin theta_e) / (1 - c x_e), with the delta-dot term dropped
     when the denominator is near singular (|x_e| >= 4/pi m on the wrong side).
     """
@@ -223,7 +223,7 @@ class ConsensusController:
         v, omega = self.model.saturate((v, omega))[0] if self.model.kind == "unicycle" else (v, omega)
         xi = s - cfg.s_d
         acc = consensus_acceleration(errors, delta, kappa, sdot, xi, self._neighbour_states(obs.t, xi), cfg, v_d)
-        # integrate the virtual vehicle at the control rate (SPEC 2(f) note 3)
+        # integrate the virtual vehicle at the control rate (docs/controllers-notes.md, N3)
         self.sdot = min(max(sdot + acc * obs.dt, 0.0), cfg.sdot_max)
         self.s = s + self.sdot * obs.dt
         msg = Outgoing(MESSAGE_KIND, {"s": s, "sdot": sdot, "s_d": cfg.s_d})

@@ -11,7 +11,7 @@ A formation switch (the selection mechanism is assumed to exist, Sec. 6.2.4: her
 schedule on the formation coordinate xi) moves both offsets from the old slot to the new
 one with the quintic (5.1)-(5.3) over ``transition_m`` metres of the robot's own path
 coordinate, so q, q' and q'' stay continuous and the offset curve stays C2; the change
-of s_di speeds the robot up or slows it down through the consensus (SPEC 1.4). During a
+of s_di speeds the robot up or slows it down through the consensus (as p_i in Sec. 5.3, docs/ambiguities.md, A32). During a
 transition, the repulsive field (6.12)-(6.15) (:func:`agent.controllers.roles.navigation.repulsive_shift`)
 pushes the reference position away from the other robots so that crossing slots do not
 collide.
@@ -29,7 +29,7 @@ from typing import Sequence
 
 import numpy as np
 
-from copath.config import from_table, require
+from copath.config import require
 from copath.offsets import Quintic, offset_state
 
 from copath.control import controller, LatestMessages, Observation, Outgoing, PeerMessage, RobotContext, StepResult

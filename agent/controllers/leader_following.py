@@ -8,12 +8,12 @@ estimates the leader's progress from the newest plan and the plan's age, builds 
 reference trajectory on the offset curve with the velocity profile (5.4)-(5.5), and
 tracks it with the omni trajectory-tracking NMPC (5.8).
 
-Formation changes move q with the quintic (5.3) and p with the same quintic (SPEC 1.4,
-ambiguity), both scheduled on the leader's path coordinate; the schedule is checked
-at build time so that the planned slots of no two robots come closer than a safety
+Formation changes move q with the quintic (5.3) and p with the same quintic
+(docs/ambiguities.md, A32), both scheduled on the leader's path coordinate; the schedule
+is checked at build time so that the planned slots of no two robots come closer than a safety
 distance (the text leaves the collision-free timing to the designer).
 
-Beyond the dissertation (SPEC section 4, item 5): formation feedback. Followers report
+Beyond the dissertation (docs/controllers-notes.md, N4): formation feedback. Followers report
 their tracking error (``follower_status``) and the leader lowers its reference speed
 while a follower lags; ``formation_feedback = false`` reproduces the original scheme.
 """
@@ -27,7 +27,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from copath.config import ConfigError, from_table, require
+from copath.config import ConfigError, require
 from copath.offsets import Quintic, offset_state
 from copath.paths import Path, PathTable, wrap_to_pi
 
@@ -71,7 +71,7 @@ class LeaderPlan:
 
     The leader's progress is estimated as s_c(tau) = s_l + int_{t_k}^{tau} sdot(sigma)
     dsigma with sdot piecewise constant on steps of delta_l and held at its last value
-    beyond the plan (SPEC 2(d), follower reference generation, step 1). A lost packet
+    beyond the plan (Sec. 5.3.3; docs/controllers-notes.md, N5). A lost packet
     is filled in by reusing this plan with its larger age (step 2).
     """
 
@@ -236,7 +236,7 @@ def follower_reference(path: Path | PathTable, schedule: FormationSchedule, robo
     (App. A). With p and q functions of s_c (the schedule's coordinate), the derivatives
     along the follower's own coordinate are dq/ds_i = q_c' / (1 + p_c') and
     d2q/ds_i^2 = (q_c'' (1 + p_c') - q_c' p_c'') / (1 + p_c')^3. The speed at s_i is
-    u_p = sdot_c (1 + p_c') = sdot_c + pdot_i (ambiguity #28), so u_{i,R} = H u_p (5.4) and
+    u_p = sdot_c (1 + p_c') = sdot_c + pdot_i (docs/ambiguities.md, A28), so u_{i,R} = H u_p (5.4) and
     omega_{i,R} = k_i u_{i,R} (5.5).
     """
     s_c = np.atleast_1d(np.asarray(s_c, dtype=float))

@@ -10,12 +10,12 @@ Two problems, each built once and solved every control period with :mod:`copath.
   reference given as arrays over the horizon (x_r, y_r, theta_r, u_r, omega_r per step).
 
 Decision variables are the three wheel rim speeds (plus s-dot for path following), so
-the wheel limit |qdot_i| <= qdot_max of (3.2) is an exact box (FIELD_NOTES). The body
+the wheel limit |qdot_i| <= qdot_max of (3.2) is an exact box (docs/measurements.md, M12). The body
 velocities are (u, v, omega) = M^-1 qdot. The dissertation's inputs (s-dot, alpha_e,
 omega) with a fixed u_R are recovered as a special case: the path-frame velocity is
 V = R(theta - theta_p) [u, v] = u_R [cos alpha_e, sin alpha_e]. Because |V| is now free,
 a speed residual sqrt(w_speed) (|V|^2 - u_R^2) / (2 u_R) (~ |V| - u_R) keeps the speed at
-u_R (SPEC 2(a1), "optional extension: make u_R a decision variable and add a penalty").
+u_R (docs/controllers-notes.md, N1).
 
 The builders ``build_path_following`` and ``build_trajectory_tracking`` wrap them as
 controllers (contract: ``agent/controllers/base.py``); the leader-following NMPC of
@@ -34,7 +34,7 @@ from typing import Sequence
 import casadi as ca
 import numpy as np
 
-from copath.config import ConfigError, from_table, require
+from copath.config import ConfigError, require
 from copath.models import OmniModel
 from copath.mpc import OCP, MPCSolver, SolveResult, SolverConfig, SolverFields, weighted
 from copath.paths import Path, wrap_to_pi
@@ -105,7 +105,7 @@ def pf_error_dynamics(xe, body, sdot, kappa):
 
 
 def pf_virtual_inputs(xe, body, sdot, omega_d):
-    """Virtual inputs u_e of (4.5) with u_3 = omega - omega_d (ambiguity #1)."""
+    """Virtual inputs u_e of (4.5) with u_3 = omega - omega_d (docs/ambiguities.md, A1)."""
     Vx, Vy = _path_frame_velocity(xe[2], body[0], body[1])
     return ca.vertcat(-sdot + Vx, Vy, body[2] - omega_d)
 
@@ -129,7 +129,7 @@ def tt_error_dynamics(xe, body, u_d, omega_d):
 
 
 def tt_virtual_inputs(xe, body, u_d, omega_d):
-    """Virtual inputs of (4.12)-(4.13), rows corrected per ambiguity #3."""
+    """Virtual inputs of (4.12)-(4.13), rows corrected per docs/ambiguities.md, A3."""
     return ca.vertcat(u_d * ca.cos(xe[2]) - body[0], u_d * ca.sin(xe[2]) - body[1], omega_d - body[2])
 
 
@@ -137,7 +137,7 @@ def gain_condition_margins(Q, R, gains, P=None) -> np.ndarray:
     """Left sides of (4.10): p_ii k_i - q_ii - k_i^2 r_ii (P = I gives (4.10) exactly).
 
     The stability condition (4.9) holds for every terminal state when all are >= 0
-    (the drift matrix of (4.4) is skew-symmetric, SPEC 2(a1)).
+    (the drift matrix of (4.4) is skew-symmetric, docs/derivations.md, D7).
     """
     Q, R, k = (np.asarray(a, float).reshape(3) for a in (Q, R, gains))
     P = np.ones(3) if P is None else np.asarray(P, float).reshape(3)
@@ -248,7 +248,7 @@ class OmniPathFollowingNMPC:
 
         # stage parameters p = (kappa_bar, dkappa_bar, s_bar, u_R, theta_off):
         # kappa(s) ~ kappa_bar + dkappa_bar (s - s_bar), the curvature linearised about
-        # the warm-start prediction s_bar (FIELD_NOTES: "GN + linearised curvature");
+        # the warm-start prediction s_bar (docs/measurements.md, M12);
         # theta_off = theta_p(s_bar) - theta_b for a fixed desired heading.
         def kappa(x, p):
             return p[0] + p[1] * (x[3] - p[2])
@@ -279,7 +279,7 @@ class OmniPathFollowingNMPC:
 
         def terminal_region(x, u, p):
             # (4.11) with J evaluated at the heading relative to the path frame
-            # (ambiguity #2) and s-dot_T = the last planned s-dot.
+            # (docs/ambiguities.md, A2) and s-dot_T = the last planned s-dot.
             sdT = u[3]
             k = kappa(x, p)
             omega_dT = k * sdT if tangent else 0.0
@@ -436,7 +436,7 @@ class OmniTrackingNMPC:
             return weighted(errors(x, p), 0.5 * self.P)
 
         def terminal_region(x, u, p):
-            # terminal-law commands (SPEC 2(a2)) must respect the wheel limit
+            # terminal-law commands (docs/derivations.md, D15) must respect the wheel limit
             xe = errors(x, p)
             body = ca.vertcat(p[3] * ca.cos(xe[2]) + a * xe[0], p[3] * ca.sin(xe[2]) + b * xe[1],
                               p[4] + g * xe[2])
@@ -496,7 +496,7 @@ class EightTrajectory:
 
     ``sample(t)`` returns (n, 5) rows (x, y, theta, u, omega): theta = atan2(ydot, xdot),
     u = |pdot| (0.49-1.20 m/s for the published values), omega = (xdot yddot - ydot
-    xddot) / |pdot|^2 (SPEC 2(a2)).
+    xddot) / |pdot|^2 (docs/derivations.md, D14).
     """
 
     ax: float = 1.8

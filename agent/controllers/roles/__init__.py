@@ -8,6 +8,8 @@ One module per concern:
                       Algorithm 6.1;
 - :mod:`.assignment`  local Hungarian (6.7) and negotiation, Algorithm 6.2;
 - :mod:`.navigation`  (6.10)-(6.11) navigation and the repulsive field (6.12)-(6.15);
+- :mod:`.phases`      one state object per phase of a task (agreement, assignment and
+                      negotiation, navigation, task sequencing) and the neighbour table;
 - :mod:`.controller`  the per-robot state machine tying them together.
 """
 

@@ -7,7 +7,7 @@
 - :func:`nearest_position`: the loser of a negotiation takes the nearest position of
   its available set (Algorithm 6.2, lines 6 and 11).
 - :class:`RoleBook`: one robot's view J^a_i / J^t_i of the positions, merged with the
-  neighbours' taken sets every step (ambiguity #24: line 2 unites the neighbours'
+  neighbours' taken sets every step (docs/ambiguities.md, A24: line 2 unites the neighbours'
   *taken* sets), and the pairwise negotiation in which the robot with the higher index
   decides, ties going to it (line 5, d_i <= d_k).
 
@@ -131,7 +131,7 @@ class RoleBook:
             self.taken.add(self.position)
 
     def merge(self, taken_sets: Iterable[Iterable[int]], claims: Iterable[int] = ()) -> None:
-        """Algorithm 6.2 lines 1-2 with ambiguity #24: J^t_i <- J^t_i U (U_j J^t_j)."""
+        """Algorithm 6.2 lines 1-2 with docs/ambiguities.md, A24: J^t_i <- J^t_i U (U_j J^t_j)."""
         for ts in taken_sets:
             self.taken.update(int(k) for k in ts if 0 <= int(k) < self.n_positions)
         self.taken.update(int(k) for k in claims if 0 <= int(k) < self.n_positions)

@@ -1,0 +1,439 @@
+"""The phases of one robot's Chapter 6 task, one small state object each.
+
+:class:`~.controller.RolesController` ties them together; each object here holds the
+state of one phase only, creates every attribute in ``__init__`` and builds no message:
+
+- :class:`PeerTable`      the neighbours heard within ``neighbour_timeout_s`` (the
+                          range-limited graph of Def. 10), from the newest ``role_state``
+                          of each (:class:`copath.control.LatestMessages`);
+- :class:`Agreement`      phase 1, Algorithm 6.1: average consensus on the moment vector
+                          (6.8)-(6.9) and the local agreement test that ends it;
+- :class:`Assignment`     phase 2, Sec. 6.2.2 and Algorithm 6.2: the target positions of
+                          the task, the initial choice by a local Hungarian problem (6.7),
+                          claims, rulings of the negotiation and the waiting place of a
+                          robot without a position;
+- :class:`Motion`         phase 3, (6.10)-(6.15): driving to the goal with the repulsive
+                          target shift and the sideways escape from a standstill, and the
+                          settling test of a robot without a position;
+- :class:`TaskSequence`   phase 4, (6.16): the task index, the PI dynamic consensus on the
+                          fraction of unfinished robots and what is kept across tasks.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from copath.control import LatestMessages, PeerMessage
+
+from .assignment import Claim, RoleBook, Ruling, local_hungarian, nearest_position
+from .config import RolesConfig
+from .consensus import AverageConsensus, NeighbourContribution, PIConsensus
+from .navigation import NavigationGains, parking_point, polar_control, repulsive_shift
+from .rotation import moment_vector
+
+__all__ = [
+    "MESSAGE_KIND",
+    "CONSENSUS",
+    "ASSIGNED",
+    "UNASSIGNED",
+    "Peer",
+    "PeerTable",
+    "Agreement",
+    "Assignment",
+    "Motion",
+    "TaskSequence",
+]
+
+logger = logging.getLogger(__name__)
+
+MESSAGE_KIND = "role_state"
+CONSENSUS, ASSIGNED, UNASSIGNED = 0, 1, 2
+"""Phases of the assignment: agreeing on the transform; holding a position; without a position."""
+
+N_MOMENTS = 5
+"""Size of the moment vector (6.8)-(6.9): x, y, x^2, xy, y^2."""
+
+
+# -- neighbours ------------------------------------------------------------------------
+
+
+@dataclass
+class Peer:
+    """Newest ``role_state`` of one neighbour."""
+
+    heard: float
+    """Own clock when it was received [s]."""
+    position: np.ndarray
+    """Sender position extrapolated to ``heard`` [m]."""
+    velocity: np.ndarray
+    task: int
+    index: int
+    phase: int
+    payload: dict[str, Any] = field(repr=False)
+
+
+def _has_position(m: PeerMessage) -> bool:
+    return m.position is not None or m.payload.get("pos") is not None
+
+
+class PeerTable:
+    """Neighbours of a range-limited graph (Def. 10): robots heard within ``timeout`` [s]."""
+
+    def __init__(self, timeout: float) -> None:
+        self.timeout = float(timeout)
+        self.inbox = LatestMessages(kinds=(MESSAGE_KIND,), accept=_has_position)
+        self.peers: dict[str, Peer] = {}
+
+    def ingest(self, inbox, t: float) -> None:
+        """Take in one step's messages (newest per neighbour by stamp)."""
+        for got in self.inbox.update(inbox, t):
+            pl = dict(got.payload)
+            pos = got.position if got.position is not None else pl.get("pos")
+            vel = np.asarray(pl.get("vel") or (0.0, 0.0), dtype=float)
+            self.peers[got.sender] = Peer(
+                heard=got.received_at,
+                position=np.asarray(pos, dtype=float) + vel * max(got.message.age, 0.0),
+                velocity=vel,
+                task=int(pl.get("task", -1)),
+                index=int(pl.get("index", 0)),
+                phase=int(pl.get("phase", CONSENSUS)),
+                payload=pl,
+            )
+
+    def fresh(self, t: float) -> dict[str, Peer]:
+        """Neighbours N_i at time t."""
+        return {n: q for n, q in self.peers.items() if t - q.heard <= self.timeout}
+
+    def same_task(self, t: float, task: int) -> dict[str, Peer]:
+        """Neighbours working on ``task``."""
+        return {n: q for n, q in self.fresh(t).items() if q.task == task}
+
+
+# -- phase 1: agreement on the formation's placement ----------------------------------
+
+
+class Agreement:
+    """Average consensus on the moment vector (Algorithm 6.1) and its local stop test.
+
+    The robot adopts the estimate once neighbours' estimates and its own change over
+    ``consensus_hold_s`` stay within ``consensus_tol`` (or after ``consensus_timeout_s``).
+    """
+
+    def __init__(self, name: str, p: np.ndarray, cfg: RolesConfig) -> None:
+        self.name = name
+        self.cfg = cfg
+        self.ac = AverageConsensus(moment_vector(p), gain=cfg.consensus_gain)
+        self.history: list[tuple[float, np.ndarray, float]] = []
+        """(t, estimate, largest neighbour disagreement) over the hold window."""
+        self.neighbours: dict[str, NeighbourContribution] = {}
+
+    def step(self, same: dict[str, Peer]) -> np.ndarray:
+        """One consensus iteration over the neighbours' latest contributions; the estimate."""
+        nbrs = {}
+        for n, q in same.items():
+            x = q.payload.get("ac_x")
+            if not x or len(x) != N_MOMENTS:
+                continue
+            to = q.payload.get("ac_to") or []
+            flows = q.payload.get("ac_a") or []
+            echoes = q.payload.get("ac_e") or []
+            a = np.zeros(N_MOMENTS)
+            echo = np.zeros(N_MOMENTS)  # it has not heard us yet: nothing of ours applied
+            if self.name in to:
+                k = to.index(self.name)
+                a = np.asarray(flows[k * N_MOMENTS:(k + 1) * N_MOMENTS], dtype=float)
+                if len(echoes) == len(flows):
+                    echo = np.asarray(echoes[k * N_MOMENTS:(k + 1) * N_MOMENTS], dtype=float)
+            nbrs[n] = NeighbourContribution(np.asarray(x, dtype=float), int(q.payload.get("ac_deg", 0)), a, echo)
+        self.neighbours = nbrs
+        return self.ac.step(nbrs)
+
+    def settled(self, est: np.ndarray, t: float, task_start: float) -> tuple[bool, bool]:
+        """(agreed, timed out) after recording this step's estimate."""
+        cfg = self.cfg
+        spread = max((float(np.max(np.abs(c.estimate - est))) for c in self.neighbours.values()), default=math.inf)
+        self.history.append((t, est.copy(), spread))
+        hold = cfg.consensus_hold_s
+        window = [h for h in self.history if h[0] >= t - hold - 1e-9]
+        self.history = window
+        timed_out = t - task_start >= cfg.consensus_timeout_s
+        agreed = (
+            t - task_start >= hold
+            and all(h[2] <= cfg.consensus_tol for h in window)
+            and float(np.max(np.abs(window[0][1] - est))) <= cfg.consensus_tol
+        )
+        return agreed, timed_out
+
+    def payload(self) -> dict[str, Any]:
+        """The consensus fields of ``role_state`` (edge-flow form, see :class:`AverageConsensus`)."""
+        to = sorted(self.neighbours)
+        return {
+            "ac_x": [float(c) for c in self.ac.estimate],
+            "ac_to": to,
+            "ac_a": [float(c) for n in to for c in self.ac.flow_to(n)],
+            "ac_e": [float(c) for n in to for c in self.ac.echo_to(n)],
+            "ac_deg": len(to),
+        }
+
+
+# -- phase 2: assignment and negotiation ----------------------------------------------
+
+
+class Assignment:
+    """Positions of the task, this robot's claim and the negotiation (Algorithm 6.2)."""
+
+    def __init__(self, name: str, index: int, n_positions: int, p: np.ndarray, t: float) -> None:
+        self.name = name
+        self.index = index
+        self.book = RoleBook(name, index, n_positions)
+        self.phase = CONSENSUS
+        self.targets: np.ndarray | None = None
+        """(M, 2) target positions once the placement is agreed."""
+        self.park: np.ndarray | None = None
+        """Waiting place of a robot without a position."""
+        self.rulings_out: dict[tuple[int, str, str], float] = {}
+        """Rulings this robot made -> when; repeated for a while so a lost message does not lose them."""
+        self.snapshot = np.asarray(p, dtype=float).copy()
+        """Own start position of the task."""
+        self.known: dict[str, tuple[float, float, float, int]] = {name: (t, float(p[0]), float(p[1]), -1)}
+        """With ``relay_positions``: robot -> (stamp, start x, start y, claim) relayed over hops."""
+        self.known_changed = t
+        self.announce_targets = False
+        self.announce_index = False
+
+    @property
+    def position(self) -> int:
+        """Claimed position index, -1 without one."""
+        return self.book.position
+
+    def place(self, targets: np.ndarray) -> None:
+        """The agreed target positions (ambiguity A22 of docs/ambiguities.md for the transform)."""
+        self.targets = targets
+        self.announce_targets = True
+
+    def initial_choice(self, p: np.ndarray, same: dict[str, Peer], fresh: dict[str, Peer], task: int,
+                       relay: bool) -> int | None:
+        """Initial choice (Sec. 6.2.2): own row of a local Hungarian problem (6.7).
+
+        One-hop exchange (the text): rows are this robot and its neighbours without a
+        position, columns the positions it believes available; a robot left without a
+        column takes the nearest position even though it is taken, and the negotiation
+        sorts it out. With ``relay`` every robot solves the same problem, all robots it
+        has heard of (start positions of the task) x all positions, so the choices agree
+        without negotiation whenever the tables agree; a robot left without a column then
+        knows that the whole team's optimum has no role for it and goes without one
+        instead of contesting a taken position.
+        """
+        self.merge(same)
+        if relay:
+            others = [(x, y) for n, (_, x, y, _c) in sorted(self.known.items()) if n != self.name]
+            pos = local_hungarian(self.snapshot, others, self.targets, range(len(self.targets)))
+            if pos is not None and pos in self.book.taken:
+                # someone already holds it (a robot this one has not heard of): nearest free one
+                pos = nearest_position(p, self.targets, self.book.available)
+            return pos
+        others = [q.position for q in fresh.values() if not (q.task == task and q.phase in (ASSIGNED, UNASSIGNED))]
+        pos = local_hungarian(p, others, self.targets, self.book.available)
+        if pos is None:  # N > M: no column left -> the nearest position, even if taken
+            pos = nearest_position(p, self.targets, range(len(self.targets)))
+        return pos
+
+    def take(self, pos: int | None) -> None:
+        """Claim ``pos`` (None: go without a position)."""
+        self.book.claim(pos)
+        self.announce_index = True
+        if pos is None:
+            self.phase = UNASSIGNED
+        else:
+            self.phase = ASSIGNED
+            self.park = None
+
+    def reassign_choice(self, p: np.ndarray) -> int | None:
+        """The loser takes the nearest available position, or none (Algorithm 6.2)."""
+        old = self.book.position
+        return nearest_position(p, self.targets, [k for k in self.book.available if k != old])
+
+    def priority_parks(self, same: dict[str, Peer]) -> list:
+        """Waiting places announced by same-task robots without a role and a lower index."""
+        return [
+            q.payload.get("park")
+            for q in same.values()
+            if q.phase == UNASSIGNED and q.index < self.index and len(q.payload.get("park") or []) == 2
+        ]
+
+    def set_park(self, p: np.ndarray, same: dict[str, Peer], clearance: float) -> None:
+        self.park = parking_point(p, self.targets.mean(axis=0), self.targets, clearance, self.priority_parks(same))
+
+    def check_park(self, p: np.ndarray, same: dict[str, Peer], clearance: float) -> None:
+        """Move the waiting place when a robot with priority announced one too close to it."""
+        avoid = self.priority_parks(same)
+        if avoid and min(float(np.hypot(*(np.asarray(a) - self.park))) for a in avoid) < clearance - 1e-6:
+            self.set_park(p, same, clearance)
+
+    def relay(self, same: dict[str, Peer], t: float) -> None:
+        """Merge the neighbours' tables of start positions and claims (freshest entry wins)."""
+        self.known[self.name] = (t, float(self.snapshot[0]), float(self.snapshot[1]), int(self.book.position))
+        for q in same.values():
+            for e in q.payload.get("known") or []:
+                if len(e) != 5 or e[0] == self.name:
+                    continue
+                name, stamp = str(e[0]), float(e[1])
+                old = self.known.get(name)
+                if old is None:
+                    self.known_changed = t
+                if old is None or stamp > old[0]:
+                    self.known[name] = (stamp, float(e[2]), float(e[3]), int(e[4]))
+
+    def merge(self, same: dict[str, Peer]) -> None:
+        """Unite the taken sets and claims the neighbours announced (ambiguity A24)."""
+        self.book.merge((q.payload.get("taken") or () for q in same.values()),
+                        (int(q.payload.get("claim", -1)) for q in same.values()))
+
+    def lost_a_ruling(self, same: dict[str, Peer]) -> bool:
+        """A neighbour ruled that this robot lost its claimed position."""
+        incoming = []
+        for q in same.values():
+            for r in q.payload.get("rulings") or []:
+                if len(r) == 3 and self.name in (r[1], r[2]):
+                    incoming.append(Ruling(int(r[0]), str(r[1]), str(r[2])))
+        return self.book.lost(incoming)
+
+    def resolve_conflicts(self, same: dict[str, Peer], p: np.ndarray, t: float) -> tuple[bool, bool]:
+        """Negotiate the claims that conflict with this robot's (Algorithm 6.2).
+
+        Returns (wait, lost): stop for this step; this robot lost its position.
+        """
+        claims = [
+            Claim(n, q.index, int(q.payload.get("claim", -1)), float(q.payload.get("d", math.inf)))
+            for n, q in same.items()
+            if q.phase == ASSIGNED
+        ]
+        conflicts = self.book.conflicts(claims)
+        if not conflicts:
+            return False, False
+        rulings, waiting = self.book.negotiate(self.distance(p), conflicts)
+        for r in rulings:
+            self.rulings_out[(r.position, r.winner, r.loser)] = t
+        if any(r.loser == self.name for r in rulings):
+            return False, True
+        return waiting, False
+
+    def distance(self, p: np.ndarray) -> float:
+        """Distance to the claimed position (inf without one)."""
+        if self.phase == ASSIGNED and self.targets is not None:
+            return float(np.hypot(*(self.targets[self.book.position] - p)))
+        return math.inf
+
+    def goal(self) -> np.ndarray | None:
+        if self.phase == ASSIGNED:
+            return self.targets[self.book.position]
+        if self.phase == UNASSIGNED:
+            return self.park
+        return None
+
+    def recent_rulings(self, t: float) -> list[list]:
+        """Rulings of the last second (forgetting older ones), for the message."""
+        self.rulings_out = {k: t0 for k, t0 in self.rulings_out.items() if t - t0 <= 1.0}
+        return [[int(k[0]), k[1], k[2]] for k in self.rulings_out]
+
+
+# -- phase 3: navigation ------------------------------------------------------------------
+
+
+class Motion:
+    """Driving to the goal with (6.11) and the repulsive shift (6.12)-(6.15), plus the
+    sideways target change that breaks a standstill away from the target (Sec. 6.2.2)."""
+
+    def __init__(self, cfg: RolesConfig, gains: NavigationGains, model, rng: np.random.Generator) -> None:
+        self.cfg = cfg
+        self.gains = gains
+        self.model = model
+        self.rng = rng
+        self.track: list[tuple[float, np.ndarray]] = []
+        """Own positions over the last ``stuck_s`` (standstill detection)."""
+        self.escape_until = -math.inf
+        self.escape_vec = np.zeros(2)
+        self.settle_track: list[tuple[float, np.ndarray]] = []
+        """Own positions over the last ``settle_s`` (settling of a robot without a role)."""
+
+    def drive(self, pose: np.ndarray, goal: np.ndarray, obstacles: list, t: float, name: str = "") -> np.ndarray:
+        """Unicycle command (v, omega) towards ``goal`` avoiding ``obstacles`` (positions)."""
+        cfg = self.cfg
+        p = pose[:2]
+        e = float(np.hypot(*(goal - p)))
+        self.track.append((t, p.copy()))
+        self.track = [h for h in self.track if h[0] >= t - cfg.stuck_s - 1e-9]
+        if t >= self.escape_until and e > 2 * cfg.arrive_tol and cfg.escape_m > 0:
+            t0, p0 = self.track[0]
+            if t - t0 >= cfg.stuck_s - 1e-9 and np.hypot(*(p - p0)) < 0.03:
+                u = (goal - p) / max(e, 1e-9)
+                side = 1.0 if self.rng.random() < 0.5 else -1.0
+                self.escape_vec = side * cfg.escape_m * np.array([-u[1], u[0]])
+                self.escape_until = t + cfg.escape_s
+                self.track = []
+                logger.debug("%s: standstill at %.2f m from the target; escaping sideways", name, e)
+        g = goal + (self.escape_vec if t < self.escape_until else 0.0)
+        g_new = repulsive_shift(p, g, obstacles, self.gains)
+        v, w = polar_control(pose, g_new, cfg.k_c, cfg.gamma, cfg.stop_radius)
+        cmd, _ = self.model.saturate((v, w))
+        return cmd
+
+    def settled(self, p: np.ndarray, park: np.ndarray, t: float) -> bool:
+        """A robot without a role has finished: near its waiting place, or hardly moved for
+        ``settle_s`` (repulsion from a neighbour may hold it off the exact point)."""
+        cfg = self.cfg
+        self.settle_track.append((t, p.copy()))
+        self.settle_track = [h for h in self.settle_track if h[0] >= t - cfg.settle_s - 1e-9]
+        t0, p0 = self.settle_track[0]
+        still = t - t0 >= cfg.settle_s - 1e-9 and float(np.hypot(*(p - p0))) < cfg.arrive_tol
+        near = float(np.hypot(*(park - p))) < 2 * cfg.arrive_tol
+        return near or still
+
+
+# -- phase 4: task sequencing ---------------------------------------------------------
+
+
+class TaskSequence:
+    """The queue of formations: task index, the PI dynamic consensus (6.16) on
+    w_i (1 unfinished, 0 finished) and what is kept across tasks."""
+
+    def __init__(self, cfg: RolesConfig) -> None:
+        self.cfg = cfg
+        self.n_tasks = len(cfg.formations)
+        self.pi = PIConsensus(cfg.k_z, cfg.k_p, cfg.k_i)
+        self.task = -1
+        self.task_start = 0.0
+        self.done = False
+        """This robot has finished the current task."""
+        self.conflicts_total = 0
+        """Negotiations initiated in the finished tasks."""
+        self.transform: tuple[np.ndarray, float] | None = None
+        """Agreed (centroid, rotation), kept across tasks when ``transform_every_task`` is off."""
+
+    @property
+    def started(self) -> bool:
+        return self.task >= 0
+
+    def begin(self, k: int, t: float) -> None:
+        """Start formation k: reset (6.16) (ambiguity A26)."""
+        self.task = k
+        self.task_start = t
+        self.done = False
+        self.pi.reset(1.0)
+
+    def step(self, same: dict[str, Peer], dt: float) -> float:
+        """(6.16) with w_i = 0 once this robot has finished its task; returns z_i."""
+        return self.pi.step(0.0 if self.done else 1.0,
+                            ((float(q.payload.get("z", 1.0)), float(q.payload.get("eta", 0.0)),
+                              int(q.payload.get("deg", 0))) for q in same.values()), dt)
+
+    def switch_due(self, t: float, phase: int) -> bool:
+        """z_i has reached the threshold and there is a next formation."""
+        cfg = self.cfg
+        return (self.pi.z <= cfg.threshold and self.task + 1 < self.n_tasks
+                and t - self.task_start >= cfg.min_task_s and phase != CONSENSUS)

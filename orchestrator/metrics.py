@@ -33,7 +33,7 @@ from copath.wire.keys import Keys
 from copath.wire.messages import Command, End, Estimate, Event, Stats, Telemetry, Truth
 
 from .metrics_estimation import ESTIMATION_KEYS, estimation_metrics
-from .metrics_truth import cross_track_series, truth_metrics
+from .metrics_truth import cross_track_series, team_geometry, truth_metrics, truth_series
 
 __all__ = ["RobotTrace", "Trace", "trace_from_records", "compute_metrics", "metrics_from_log", "METRIC_KEYS"]
 
@@ -299,14 +299,16 @@ def compute_metrics(
             continue
         robots[r.name] = _robot_metrics(rt, settle, r.model.kind, missed.get(r.name, 0))
         robots[r.name].update(estimation_metrics(trace.estimates.get(r.name), rt.pose_at))
-    for n, e in cross_track_series(trace, scenario).items():
+    geometry = team_geometry(scenario)
+    series = truth_series(trace, scenario, geometry) if geometry is not None else None
+    for n, e in cross_track_series(trace, scenario, geometry, series).items():
         t = trace.robots[n].t
         e = e[t >= settle - 1e-9]
         if n in robots and len(e):
             robots[n]["cross_track_error_max_m"] = _f(e.max())
             robots[n]["cross_track_error_rms_m"] = _f(np.sqrt(np.mean(e**2)))
     fleet: dict[str, Any] = dict.fromkeys(FLEET_KEYS)
-    fleet.update(truth_metrics(trace, scenario))
+    fleet.update(truth_metrics(trace, scenario, series))
     fleet["coordination_error_max_reported_m"], fleet["coordination_error_rms_reported_m"] = \
         _coordination_reported(trace, scenario, settle)
     fleet["min_separation_m"], collisions = _separation(trace, scenario)

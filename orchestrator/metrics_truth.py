@@ -35,15 +35,18 @@ with o(s, q) = r(s) + q n(s) the offset point (5.10). See docs/metrics.md.
 from __future__ import annotations
 
 import itertools
+import logging
 from dataclasses import dataclass
 from typing import Any, Callable
 
 import numpy as np
 
-from copath.config import from_table
+from copath.config import ConfigError, from_table
 from copath.paths import Path
 from copath.scenario import Scenario
 from copath.slots import offset_points, solve_coordinate, switching_offsets, track_coordinate, wrap_near
+
+logger = logging.getLogger(__name__)
 
 __all__ = ["TeamGeometry", "TruthSeries", "team_geometry", "truth_series", "truth_metrics", "cross_track_series",
            "FAMILIES"]
@@ -219,7 +222,13 @@ def team_geometry(scenario: Scenario) -> TeamGeometry | None:
     if len(scenario.robots) < 2:
         return None
     build = FAMILIES.get(frozenset(r.controller for r in scenario.robots))
-    return build(scenario) if build is not None else None
+    if build is None:
+        return None
+    try:
+        return build(scenario)
+    except (ConfigError, KeyError, ValueError, StopIteration) as exc:  # never fail a finished run
+        logger.warning("no truth geometry for scenario %s: %s", scenario.id, exc)
+        return None
 
 
 @dataclass
@@ -314,12 +323,14 @@ def truth_metrics(trace, scenario: Scenario, series: TruthSeries | None = None) 
     return out
 
 
-def cross_track_series(trace, scenario: Scenario, geometry: TeamGeometry | None = None) -> dict[str, np.ndarray]:
+def cross_track_series(trace, scenario: Scenario, geometry: TeamGeometry | None = None,
+                       series: TruthSeries | None = None) -> dict[str, np.ndarray]:
     """Cross-track error of each robot that has a path: |lateral offset of its true position
     from its path - desired lateral offset| [m], on the simulator's ticks.
 
     The lateral offset is (p - r(s)) . n(s) at the projection s of the true position; the
-    desired one is the robot's offset q (5.10) (zero for a robot on its path)."""
+    desired one is the robot's offset q (5.10) (zero for a robot on its path). ``series``
+    lends its path coordinates (the same projection) when it has them."""
     geo = geometry if geometry is not None else team_geometry(scenario)
     paths = dict(geo.paths) if geo is not None else {r.name: scenario.paths[r.path] for r in scenario.robots if r.path}
     S, P = {}, {}
@@ -328,7 +339,8 @@ def cross_track_series(trace, scenario: Scenario, geometry: TeamGeometry | None 
         if rt is None or not len(rt.t):
             continue
         P[n] = np.asarray(rt.pose, dtype=float)[:, :2]
-        S[n] = track_coordinate(path, P[n])
+        known = series.s.get(n) if series is not None else None
+        S[n] = known if known is not None and len(known) == len(P[n]) else track_coordinate(path, P[n])
     if not S:
         return {}
     if geo is not None and geo.lateral is not None and (geo.leader is None or geo.leader in S):

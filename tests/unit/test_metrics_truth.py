@@ -143,3 +143,39 @@ def test_copath_metrics_recomputes_metrics_json_from_a_log(e55, tmp_path, capsys
     assert m["robots"] == res.metrics["robots"]
     assert main(["metrics", str(tmp_path / "missing.mcap")]) == 2
     assert "missing.mcap" in capsys.readouterr().err
+
+
+TEAMS = ["e5.1-leader-following-lemniscate", "e5.2-dmpc-ellipse-triangle", "e5.3-dmpc-morphing-three-paths",
+         "e5.4-six-robots-lemniscate", "e5.6-sinusoids-and-line", "e5.7-heterogeneous-team",
+         "e6.6-formation-switching-on-path"]
+
+
+@pytest.mark.parametrize("stem", TEAMS)
+def test_a_team_standing_exactly_in_its_slots_scores_zero(stem):
+    """Place every robot on its slot at a moving team coordinate (the leader on its path):
+    the truth must find no coordination, formation or cross-track error, in and out of
+    formation changes, over laps and through the lemniscate's crossing."""
+    from types import SimpleNamespace
+
+    from orchestrator.metrics_truth import cross_track_series, team_geometry, truth_series
+
+    sc = load_scenario(CONFIGS / f"{stem}.toml")
+    geo = team_geometry(sc)
+    assert geo is not None
+    base = geo.paths[geo.leader] if geo.leader else next(iter(geo.paths.values()))
+    span = 1.4 * base.length if base.closed else base.length - 2.0
+    x = np.linspace(0.3, 0.3 + span, 1500)
+    slots = geo.slots(x)
+    if geo.leader:
+        slots[geo.leader] = base.pos(x)
+    robots = {n: SimpleNamespace(t=0.05 * np.arange(len(x)), pose=np.column_stack([P, np.zeros(len(x))]))
+              for n, P in slots.items()}
+    trace = SimpleNamespace(robots=robots)
+    ser = truth_series(trace, sc, geo)
+    assert np.max(ser.coordination_error) < 1e-5
+    assert max(float(np.max(e)) for e in ser.formation_error.values()) < 1e-5
+    assert np.allclose(wrap_near(ser.xi_ref - x, geo.period), 0.0, atol=1e-5)  # the team's coordinate
+    cross = cross_track_series(trace, sc, geo, ser)
+    assert max(float(np.max(e)) for e in cross.values()) < 1e-5
+    if stem.startswith(("e5.1", "e6.6")):  # scheduled changes are seen, and end
+        assert ser.in_transition.any() and not ser.in_transition[-1]

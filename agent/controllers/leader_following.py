@@ -32,7 +32,7 @@ from copath.offsets import Quintic, offset_state
 from copath.paths import Path, PathTable, wrap_to_pi
 
 from copath.control import controller, LatestMessages, Observation, Outgoing, PeerMessage, RobotContext, StepResult
-from .omni_nmpc import OmniPathFollowingNMPC, OmniPFConfig, OmniTrackingNMPC, OmniNMPCFields, check_gain_conditions
+from .omni_nmpc import OmniNMPCFields, OmniPathFollower, OmniPFConfig, OmniTrackingNMPC, check_gain_conditions
 
 __all__ = [
     "PathLeader",
@@ -366,36 +366,13 @@ def _start_coordinate(path: Path, p) -> float:
     return s - path.length if path.closed and s >= 0.5 * path.length else s
 
 
-class PathLeader:
-    """The leader's path following (5.6)-(5.7): the omni NMPC of Sec. 4.2 on the team path
-    with its virtual vehicle s integrated at the actual step times. Shared by the Sec. 5.3
-    leader and the heterogeneous team's leader (Sec. 5.5.5)."""
+class PathLeader(OmniPathFollower):
+    """The leader's path following (5.6)-(5.7): the omni path following of Sec. 4.2
+    (:class:`~.omni_nmpc.OmniPathFollower`) on the team path, starting near s = 0.
+    Shared by the Sec. 5.3 leader and the heterogeneous team's leader (Sec. 5.5.5)."""
 
     def __init__(self, ctx: RobotContext, cfg: OmniPFConfig, role: str) -> None:
-        where = f"robots.{ctx.name}.controller"
-        if ctx.model.kind != "omni":
-            raise ConfigError(f"robots.{ctx.name}.model = {ctx.model.kind!r} is not allowed; {role} needs omni")
-        if cfg.terminal:
-            check_gain_conditions(cfg.Q, cfg.R, cfg.gains, where=where)
-        self.path = ctx.own_path
-        self.nmpc = OmniPathFollowingNMPC(
-            self.path, ctx.model, cfg.horizon, ctx.dt, cfg.Q, cfg.R, cfg.gains,
-            speed_weight=cfg.speed_weight, sdot_max=cfg.sdot_max, terminal=cfg.terminal,
-            solver=cfg.solver_config(), name=f"{ctx.name}_{role}",
-        )
-        self.s: float | None = cfg.s0
-        self._t_prev: float | None = None
-        self._sdot_prev = 0.0
-
-    def solve(self, obs: Observation, u_R: float):
-        """Advance s to obs.t and solve; returns the :class:`PFSolution`."""
-        if self.s is None:
-            self.s = _start_coordinate(self.path, obs.pose[:2])
-        elif self._t_prev is not None:
-            self.s += self._sdot_prev * max(0.0, obs.t - self._t_prev)
-        sol = self.nmpc.solve(obs.pose, self.s, u_R)
-        self._t_prev, self._sdot_prev = obs.t, float(sol.sdot[0])
-        return sol
+        super().__init__(ctx, cfg, role, start=_start_coordinate)
 
     def telemetry(self, sol, u_R: float) -> dict[str, Any]:
         """Telemetry of a path-following leader: ref, s, sdot, xi = s, speed error."""

@@ -29,7 +29,7 @@ from __future__ import annotations
 import logging
 import math
 from dataclasses import dataclass
-from typing import Sequence
+from typing import Callable, Sequence
 
 import casadi as ca
 import numpy as np
@@ -39,7 +39,7 @@ from copath.models import OmniModel
 from copath.mpc import OCP, MPCSolver, SolveResult, SolverConfig, SolverFields, weighted
 from copath.paths import Path, wrap_to_pi
 
-from copath.control import controller, Observation, PeerMessage, RobotContext, StepResult
+from copath.control import VirtualVehicle, controller, Observation, PeerMessage, RobotContext, StepResult
 
 __all__ = [
     "OmniNMPCFields",
@@ -59,6 +59,7 @@ __all__ = [
     "PathTrajectory",
     "OmniPFConfig",
     "OmniTTConfig",
+    "OmniPathFollower",
     "OmniPathFollowingController",
     "OmniTrackingController",
     "build_path_following",
@@ -590,35 +591,76 @@ class OmniPFConfig(OmniNMPCFields):
         require(self.heading in ("tangent", "fixed"), "heading", self.heading, "allowed: tangent, fixed")
 
 
-class OmniPathFollowingController:
-    """Sec. 4.2 path following as a controller (contract: ``agent/controllers/base.py``)."""
+class OmniPathFollower:
+    """Path following of one omni robot, Sec. 4.2: the NMPC (4.1)-(4.11) and its virtual
+    vehicle, advanced at the actual step times (:class:`copath.control.VirtualVehicle`).
 
-    def __init__(self, ctx: RobotContext, cfg: OmniPFConfig) -> None:
+    Shared by the Sec. 4.2 controller, the Sec. 5.3 leader (5.6)-(5.7) and the leader of
+    the heterogeneous team (Sec. 5.5.5).
+
+    Parameters
+    ----------
+    ctx : RobotContext
+        The robot (an omni robot with a path).
+    cfg : OmniPFConfig
+        NMPC settings; ``cfg.s0`` places the virtual vehicle (None: at the first step).
+    kind : str
+        Controller type named in error messages.
+    name : str, optional
+        Suffix of the solver's name (default ``kind``).
+    start : callable (path, p) -> s, optional
+        Placement of the virtual vehicle at the first step when ``cfg.s0`` is None
+        (default: :meth:`copath.paths.Path.project` of the robot's position).
+    """
+
+    def __init__(self, ctx: RobotContext, cfg: OmniPFConfig, kind: str, name: str | None = None,
+                 start: Callable[[Path, np.ndarray], float] | None = None) -> None:
         if not isinstance(ctx.model, OmniModel):
-            raise ConfigError(f"robots.{ctx.name}.model = {ctx.model.kind!r} is not allowed; omni_nmpc_pf needs omni")
-        self.cfg = cfg
-        self.path = ctx.own_path
-        where = f"robots.{ctx.name}.controller"
+            raise ConfigError(f"robots.{ctx.name}.model = {ctx.model.kind!r} is not allowed; {kind} needs omni")
         if cfg.terminal:
-            check_gain_conditions(cfg.Q, cfg.R, cfg.gains, where=where)
+            check_gain_conditions(cfg.Q, cfg.R, cfg.gains, where=f"robots.{ctx.name}.controller")
+        self.path = ctx.own_path
         self.nmpc = OmniPathFollowingNMPC(
             self.path, ctx.model, cfg.horizon, ctx.dt, cfg.Q, cfg.R, cfg.gains,
             speed_weight=cfg.speed_weight, sdot_max=cfg.sdot_max, heading=cfg.heading,
             heading_angle=cfg.heading_angle, terminal=cfg.terminal, solver=cfg.solver_config(),
-            name=f"{ctx.name}_omni_pf",
+            name=f"{ctx.name}_{name or kind}",
         )
-        self.s: float | None = cfg.s0
-        self._t_prev: float | None = None
-        self._sdot_prev = 0.0
+        self.vehicle = VirtualVehicle(cfg.s0)
+        self._start = start
+
+    @property
+    def s(self) -> float | None:
+        """The virtual vehicle's path coordinate [m]."""
+        return self.vehicle.s
+
+    def solve(self, obs: Observation, u_R: float | Sequence[float]) -> PFSolution:
+        """Advance the virtual vehicle to obs.t and solve for the desired speed u_R."""
+        if not self.vehicle.started:
+            p = obs.pose[:2]
+            self.vehicle.start(self._start(self.path, p) if self._start else self.path.project(p))
+        s = self.vehicle.advance(obs.t)
+        sol = self.nmpc.solve(obs.pose, s, u_R)
+        self.vehicle.hold(obs.t, float(sol.sdot[0]))
+        return sol
+
+
+class OmniPathFollowingController:
+    """Sec. 4.2 path following as a controller (contract: ``copath.control``)."""
+
+    def __init__(self, ctx: RobotContext, cfg: OmniPFConfig) -> None:
+        self.cfg = cfg
+        self.follower = OmniPathFollower(ctx, cfg, "omni_nmpc_pf", name="omni_pf")
+        self.path = self.follower.path
+        self.nmpc = self.follower.nmpc
+
+    @property
+    def s(self) -> float | None:
+        return self.follower.s
 
     def step(self, obs: Observation, inbox: Sequence[PeerMessage]) -> StepResult:
-        if self.s is None:
-            self.s = self.path.project(obs.pose[:2])
-        elif self._t_prev is not None:
-            self.s += self._sdot_prev * max(0.0, obs.t - self._t_prev)
-        sol = self.nmpc.solve(obs.pose, self.s, self.cfg.u_R)
+        sol = self.follower.solve(obs, self.cfg.u_R)
         sdot = float(sol.sdot[0])
-        self._t_prev, self._sdot_prev = obs.t, sdot
         ref = self.nmpc.reference(self.s)
         tel = {
             "ref": [float(ref[0]), float(ref[1]), float(ref[2])],

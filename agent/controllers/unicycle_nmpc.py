@@ -34,7 +34,7 @@ from copath.models import UnicycleModel
 from copath.mpc import OCP, MPCSolver, SolveResult, SolverConfig, SolverFields, weighted
 from copath.paths import Path, wrap_to_pi
 
-from copath.control import controller, Observation, PeerMessage, RobotContext, StepResult
+from copath.control import VirtualVehicle, controller, Observation, PeerMessage, RobotContext, StepResult
 
 __all__ = [
     "uni_errors",
@@ -445,12 +445,15 @@ class UnicycleNMPCController:
             mode=cfg.mode, terminal=cfg.terminal, n_points=12 if cfg.K_obs > 0 else 0, v_d_nominal=cfg.v_d,
             solver=cfg.solver_config(), name=f"{ctx.name}_uni",
         )
-        self.s = float(cfg.s0)
+        self.vehicle = VirtualVehicle(cfg.s0)
         self.v = float(cfg.v0)
         self._t0: float | None = None
-        self._t_prev: float | None = None
-        self._sdot_prev = 0.0
         self._prev_scan: tuple[float, np.ndarray, np.ndarray] | None = None
+
+    @property
+    def s(self) -> float:
+        """The virtual vehicle's path coordinate [m]."""
+        return self.vehicle.s
 
     def time_reference(self, t: float) -> np.ndarray:
         """(x, y, theta, v) of the time-parameterised reference s_t = s0 + v_d (t - t0)."""
@@ -482,10 +485,10 @@ class UnicycleNMPCController:
         if self._t0 is None:
             self._t0 = obs.t
         tracking = cfg.mode == "trajectory_tracking"
-        if tracking:
-            self.s = cfg.s0 + cfg.v_d * (obs.t - self._t0)
-        elif self._t_prev is not None:
-            self.s += self._sdot_prev * max(0.0, obs.t - self._t_prev)
+        if tracking:  # the virtual vehicle runs on the clock
+            self.vehicle.start(cfg.s0 + cfg.v_d * (obs.t - self._t0))
+        else:
+            self.vehicle.advance(obs.t)
         plan = self.nmpc.mpc.shifted_plan()
         if plan is not None and not tracking:
             s_bar = plan[0][:, 4] - plan[0][0, 4] + self.s
@@ -520,7 +523,7 @@ class UnicycleNMPCController:
         omega = float(np.clip(sol.omega, -self.omega_max, self.omega_max))
         self.v = float(np.clip(self.v + a * dt, -self.v_max, self.v_max))
         sdot = float(sol.sdot[0])
-        self._t_prev, self._sdot_prev = obs.t, sdot
+        self.vehicle.hold(obs.t, sdot)
         tref = self.time_reference(obs.t)
         tel = {
             "ref": [float(ref_now[0]), float(ref_now[1]), float(ref_now[2])],

@@ -14,6 +14,9 @@ moved where):
   neighbour and kind, by stamp, with its age;
 - :meth:`copath.paths.Path.project`: a pose projected onto a path (global, or near a
   previous guess so that it stays continuous along self-crossing curves);
+- :class:`VirtualVehicle` (:mod:`copath.control.virtual`): the path coordinate of a
+  path-following virtual vehicle, advanced with the held s-dot over the actual time
+  between control instants;
 - :class:`PathTable`: one tabulated path (x, y, theta, kappa, dkappa/ds) for solvers
   and horizons (``Path.table()`` builds and caches it);
 - the model limits on the model classes (:meth:`copath.models.OmniModel.max_speed`,
@@ -26,8 +29,9 @@ moved where):
 from .contract import Controller, Observation, Outgoing, PeerMessage, RobotContext, StepResult
 from .factory import ControllerFactory, as_factory, controller
 from .inbox import LatestMessages, Received
+from .virtual import VirtualVehicle
 from copath.paths import PathTable
 
 __all__ = ["Controller", "Observation", "Outgoing", "PeerMessage", "RobotContext", "StepResult",
            "ControllerFactory", "controller", "as_factory",
-           "LatestMessages", "Received", "PathTable"]
+           "LatestMessages", "Received", "PathTable", "VirtualVehicle"]

@@ -163,3 +163,24 @@ def test_one_solver_options_table():
     with pytest.raises(ValueError, match="qp_solver = 'none' is not allowed"):
         mpc.qp_options("none")
     assert mpc.jit_options(("-O1",))["jit_options"]["flags"] == ["-O1"]
+
+
+# -- virtual vehicle ------------------------------------------------------------------
+
+
+def test_virtual_vehicle_holds_its_speed_over_the_actual_step_times():
+    from copath.control import VirtualVehicle
+
+    v = VirtualVehicle()
+    assert not v.started
+    with pytest.raises(ValueError, match="start"):
+        v.advance(0.0)
+    v.start(1.0)
+    assert v.advance(0.0) == 1.0  # nothing held yet
+    v.hold(0.0, 0.5)
+    assert v.advance(0.3) == pytest.approx(1.15)  # a late step: 0.3 s, not the nominal period
+    v.hold(0.3, 0.2)
+    assert v.advance(0.2) == pytest.approx(1.15)  # never backwards in time
+    assert v.advance(0.8) == pytest.approx(1.15 + 0.2 * 0.5)
+    assert v.advance(0.8) == pytest.approx(1.15 + 0.2 * 0.5)  # advancing twice moves once
+    assert VirtualVehicle(2).s == 2.0 and VirtualVehicle(2).started

@@ -313,12 +313,13 @@ class Run:
 def run(scenario: Scenario | str | pathlib.Path, overrides: Mapping[str, Any] | Iterable[str] | None = None, *,
         inprocess: bool = False, out_dir: str | pathlib.Path | None = None, run_id: str | None = None,
         progress: bool = False, connect: tuple[str, ...] = (), listen: tuple[str, ...] = (),
-        wall_timeout_s: float | None = None, on_tick: Callable[[float, int], None] | None = None) -> Run:
+        wall_timeout_s: float | None = None, on_tick: Callable[[float, int], None] | None = None,
+        log: bool = True) -> Run:
     """Run a scenario in this process (lockstep, no Zenoh) or as a fleet of processes.
 
     A fleet run writes ``run.mcap``, ``metrics.json`` and ``scenario.json`` into
     ``out_dir`` (default ``runs/<run id>``); an in-process run writes ``metrics.json``
-    there only when ``out_dir`` is given.
+    and (unless ``log=False``) ``run.mcap`` there only when ``out_dir`` is given.
     """
     from copath.wire.keys import valid_run_id
 
@@ -336,9 +337,13 @@ def run(scenario: Scenario | str | pathlib.Path, overrides: Mapping[str, Any] | 
         res.metrics["ok"], res.metrics["failure"] = True, None
         out = None
         if out_dir is not None:
+            from .mcaplog import write_records
+
             out = pathlib.Path(out_dir)
             out.mkdir(parents=True, exist_ok=True)
             (out / "metrics.json").write_text(json.dumps(res.metrics, indent=2))
+            if log:
+                write_records(out / "run.mcap", res.records, sc, rid)
         return Run(sc, res.metrics, res.records, out)
     from .fleet import RunOptions, run_fleet
     from .mcaplog import read_log

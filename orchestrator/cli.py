@@ -195,23 +195,17 @@ def _cmd_run(args: argparse.Namespace) -> int:
     print(f"copath run {scenario.id} ({len(scenario.robots)} robots, {scenario.run.clock}, {where}) -> {out}",
           file=sys.stderr)
     if args.inprocess:
-        from .inprocess import run_scenario
-
-        out.mkdir(parents=True, exist_ok=True)
         progress = Progress(scenario.run.duration_s, enabled=not args.quiet,
                             starting="building controllers (solvers compile)").start()
         try:
-            res = run_scenario(scenario, run_id=run_id, on_tick=progress.update)
+            run = api.run(scenario, inprocess=True, out_dir=out, run_id=run_id, on_tick=progress.update)
         finally:
             progress.done()
-        res.metrics["ok"], res.metrics["failure"] = True, None
-        (out / "metrics.json").write_text(json.dumps(res.metrics, indent=2))
-        rc = _finish(args, scenario, res.metrics)
-        print(f"metrics: {out / 'metrics.json'} (in-process run: no MCAP log)")
+        rc = _finish(args, scenario, run.metrics)
+        print(f"log: {out / 'run.mcap'} (in-process run)\nmetrics: {out / 'metrics.json'}")
+        if not args.no_plots:
+            _plots(out / "run.mcap", out)
         return rc
-    if args.live is not None:
-        print(f"live views: ws://localhost:{args.live} (Foxglove: Open connection -> Foxglove WebSocket)",
-              file=sys.stderr)
     outcome = run_fleet(scenario, RunOptions(out_dir=out, run_id=run_id, progress=not args.quiet,
                                              wall_timeout_s=args.wall_timeout, connect=tuple(args.connect),
                                              listen=tuple(args.listen), live_port=args.live))
@@ -317,7 +311,8 @@ def _cmd_info(args: argparse.Namespace) -> int:
         print("Faults:       " + (", ".join(f"{k}={json.dumps(v)}" for k, v in faults.items()) or "none"))
         shown = {k: v for k, v in facts["headline"].items() if v is not None}
         if shown:
-            print("Metrics:      " + "  ".join(f"{k}={_fmt(v, 4)}" for k, v in shown.items()))
+            print("Metrics:      " + "  ".join(f"{k}={int(v) if float(v).is_integer() else _fmt(v, 4)}"
+                                               for k, v in shown.items()))
         if args.scenario:
             print(json.dumps(info["scenario"], indent=1))
     return 0

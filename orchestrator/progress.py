@@ -60,11 +60,12 @@ class Progress:
         with self._lock:
             if sim_t > 0 and self._first_tick is None:
                 self._first_tick = now
+                self._rate_window.clear()  # the rate counts from the first tick on
             self.sim_t = max(self.sim_t, float(sim_t))
             if messages is not None:
                 self.messages = int(messages)
                 self._rate_window.append((now, self.messages))
-                while len(self._rate_window) > 2 and now - self._rate_window[0][0] > 2.0:
+                while len(self._rate_window) > 2 and now - self._rate_window[0][0] > 1.0:
                     self._rate_window.pop(0)
         if not self.tty:
             self._maybe_print_line()

@@ -17,6 +17,8 @@ import zipfile
 
 import pytest
 
+from copath.wire.session import free_port, loopback_endpoint
+
 pytestmark = pytest.mark.integration
 
 REPO = pathlib.Path(__file__).resolve().parents[2]
@@ -84,8 +86,9 @@ def test_plain_install_runs_a_bundled_scenario_from_another_directory(wheel, tmp
     assert res.returncode == 0, res.stderr
     assert "e5.5-column-lemniscate" in res.stdout and str(venv) in res.stdout
 
+    listen = loopback_endpoint(free_port())  # the router listens where it is told (multi-host set-up)
     res = _run([str(bin_ / "copath"), "run", "e5.5", "--set", "run.duration_s=3", "--set", "run.settle_s=1",
-                "--set", "network.loss=0.1", "--out", "out", "-q", "--no-plots"], work, 400, env)
+                "--set", "network.loss=0.1", "--listen", listen, "--out", "out", "-q", "--no-plots"], work, 400, env)
     assert res.returncode == 0, f"{res.stdout}\n{res.stderr}"
     assert (work / "out" / "run.mcap").is_file() and (work / "out" / "metrics.json").is_file()
     assert "targets (" in res.stdout

@@ -188,3 +188,36 @@ def test_version_and_log_level(capsys, tmp_path):
     with pytest.raises(SystemExit):
         copath(["--log-level", "loud", "scenarios"])
 
+
+
+# --- the Python API and info on a logged run ---
+
+def test_api_run_log_reads_back_and_info_shows_the_run(tmp_path, capsys):
+    run = api.run("e5.5", ["run.duration_s=3", "run.settle_s=1", "network.loss=0.2", "run.seed=7"],
+                  inprocess=True, out_dir=tmp_path)
+    poses = run.poses()
+    assert set(poses) == {"r1", "r2", "r3"}
+    assert poses["r1"].shape == (30, 4) and poses["r1"][-1, 0] == pytest.approx(2.9)
+    back = api.open_run(tmp_path)
+    assert back.metrics == run.metrics
+    assert back.scenario.network.loss == 0.2 and back.scenario.run.seed == 7
+    for name in poses:
+        assert (back.poses()[name] == poses[name]).all()
+    assert [r.passed for r in back.grade()] == [r.passed for r in run.grade()]
+    (tmp_path / "metrics.json").unlink()  # info computes the figures from the log alone
+    assert copath(["info", str(tmp_path / "run.mcap")]) == 0
+    out = capsys.readouterr().out
+    assert "Seed:         7" in out and "network.loss=0.2" in out and "Sim time:     3.00 s" in out
+    assert f"coordination_error_max_m={run.metrics['fleet']['coordination_error_max_m']:.4f}" in out
+    assert copath(["info", str(tmp_path / "run.mcap"), "--json"]) == 0
+    info = json.loads(capsys.readouterr().out)
+    assert info["seed"] == 7 and info["faults"] == {"network.loss": 0.2}
+    assert info["headline"]["collisions"] == run.metrics["fleet"]["collisions"]
+
+
+def test_api_frame_is_a_dataframe_where_pandas_is_installed():
+    pd = pytest.importorskip("pandas")
+    run = api.run("e5.5", {"run.duration_s": 2.0, "run.settle_s": 1.0}, inprocess=True)
+    df = run.frame()
+    assert isinstance(df, pd.DataFrame) and len(df) == 3 * 20
+    assert {"robot", "t", "x", "y", "theta"} <= set(df.columns)

@@ -62,6 +62,8 @@ class Recorder:
             from .viz import McapVizSink, VizBuilder
 
             self._viz = VizBuilder(scenario, keys)
+            # records the views never use are not decoded (observations only for range rays)
+            self._viz_skip = ("/cmd", "/estimate") + (() if scenario.sensors.enabled else ("/obs",))
             self._sinks = [McapVizSink(self._w)] + ([live] if live is not None else [])
             self._static = self._viz.static()  # written with the first record, at its time
 
@@ -94,7 +96,8 @@ class Recorder:
             self.count_by_key[key] = n
             self._w.add_message(ch, log_time=now, data=data, publish_time=now, sequence=n)
         # light decoding for progress and the closing account (every record when views are built)
-        if self._viz is not None or rel == "sim/truth" or rel.startswith("stats/") or rel == "sim/end":
+        views = self._viz is not None and not rel.endswith(self._viz_skip)
+        if views or rel == "sim/truth" or rel.startswith("stats/") or rel == "sim/end":
             try:
                 rec = unpack(data)
             except WireError:
@@ -105,7 +108,7 @@ class Recorder:
                 self.stats[rec.proc] = rec
             elif isinstance(rec, End):
                 self.end = rec
-            if self._viz is not None:
+            if views:
                 with self._viz_lock:
                     if self._static:
                         self._emit(self._static, now)

@@ -19,7 +19,8 @@ The TOML layout (every table optional unless said)::
     [[robots]]  name, model ("omni" | "unicycle" | table), pose = [x, y, theta], path,
                 neighbours = [...], [robots.controller] per-robot overrides
     [[obstacles]] vertices = [[x, y], ...], velocity = [vx, vy] (optional)
-    [metrics]   coordination_pairs = "all" | "edges"
+    [metrics]   coordination_pairs = "all" | "edges", formation_tolerance_m, task_tolerance_m
+                (copath.metrics_config; docs/metrics.md)
     [safety]    enabled, gamma, margin_m, lookahead_m, speed_max_mps, ... (copath.safety)
     [targets]   metric key = threshold, e.g. coordination_error_max_m = 0.1 (copath.targets)
 
@@ -46,6 +47,7 @@ from typing import Any, Callable, Mapping
 
 from .config import ConfigError, ConfigErrors, as_float_tuple, from_table, require
 from .estimation import SensingConfig, parse_sensing
+from .metrics_config import parse_metrics
 from .models import OmniModel, UnicycleModel, make_model
 from .paths import Path, make_path
 from .safety import SafetyConfig
@@ -445,7 +447,7 @@ def parse_scenario(raw: Mapping[str, Any], base_dir: pathlib.Path | None = None,
 
     obstacles = [o for o in (errs.take(lambda: _obstacle(o, f"obstacles[{i}]"))
                              for i, o in enumerate(raw.get("obstacles") or [])) if o is not None]
-    metrics = dict(raw.get("metrics") or {})
+    metrics = errs.take(lambda: parse_metrics(raw.get("metrics")), {})
     targets = errs.take(lambda: parse_targets(raw.get("targets")), ())
     sensing = errs.take(lambda: parse_sensing(raw.get("sensing"), order), SensingConfig())
     if sensing.enabled and any(v > 0 for v in noise.pose_std):

@@ -179,3 +179,14 @@ def test_a_team_standing_exactly_in_its_slots_scores_zero(stem):
     assert max(float(np.max(e)) for e in cross.values()) < 1e-5
     if stem.startswith(("e5.1", "e6.6")):  # scheduled changes are seen, and end
         assert ser.in_transition.any() and not ser.in_transition[-1]
+
+
+@pytest.mark.parametrize("table, key", [({"formation_tolerance_m": 0.0}, "metrics.formation_tolerance_m"),
+                                        ({"coordination_pairs": "some"}, "metrics.coordination_pairs"),
+                                        ({"task_tolerance": 0.1}, "metrics.task_tolerance")])
+def test_metrics_table_is_validated(e55, table, key):
+    from copath.scenario import ConfigError, parse_scenario
+
+    with pytest.raises(ConfigError, match=key.replace(".", r"\.")):
+        parse_scenario(dict(e55.raw, metrics=table))
+    assert parse_scenario(dict(e55.raw, metrics={"task_tolerance_m": 0.03})).metrics == {"task_tolerance_m": 0.03}

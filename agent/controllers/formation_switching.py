@@ -11,10 +11,10 @@ A formation switch (the selection mechanism is assumed to exist, Sec. 6.2.4: her
 schedule on the formation coordinate xi) moves both offsets from the old slot to the new
 one with the quintic (5.1)-(5.3) over ``transition_m`` metres of the robot's own path
 coordinate, so q, q' and q'' stay continuous and the offset curve stays C2; the change
-of s_di speeds the robot up or slows it down through the consensus (as p_i in Sec. 5.3, docs/ambiguities.md, A32). During a
-transition, the repulsive field (6.12)-(6.15) (:func:`agent.controllers.roles.navigation.repulsive_shift`)
-pushes the reference position away from the other robots so that crossing slots do not
-collide.
+of s_di speeds the robot up or slows it down through the consensus (as p_i in Sec. 5.3,
+docs/ambiguities.md, A32). During a transition, the repulsive field (6.12)-(6.15)
+(:func:`agent.controllers.roles.navigation.repulsive_shift`) pushes the reference
+position away from the other robots so that crossing slots do not collide.
 
 The consensus runs on xi with xi-dot = sdot (1 - s_d'(s)): when s_d varies along the
 transition the robots must move at different sdot, and (5.42) is written for the

@@ -229,7 +229,8 @@ class FollowerReference:
         return float(self.s_i[0] + (d[0] * math.cos(th) + d[1] * math.sin(th)) / self.H[0])
 
 
-def follower_reference(path: Path | PathTable, schedule: FormationSchedule, robot: str, s_c, sdot_c) -> FollowerReference:
+def follower_reference(path: Path | PathTable, schedule: FormationSchedule, robot: str, s_c,
+                       sdot_c) -> FollowerReference:
     """Reference poses and velocities of follower ``robot`` for leader progress s_c, sdot_c.
 
     s_i = s_c + p_i(s_c); o(s_i) = r(s_i) + q_i n(s_i) with heading theta_p + atan2(q', 1 - k q)

@@ -32,7 +32,7 @@ from copath.models import OmniModel
 from copath.mpc import jit_available, jit_options, qp_options
 from copath.paths import Path, wrap_to_pi
 
-from copath.control import controller, Observation, PeerMessage, RobotContext, StepResult
+from copath.control import VirtualVehicle, controller, Observation, PeerMessage, RobotContext, StepResult
 
 __all__ = [
     "ltv_errors",
@@ -341,10 +341,18 @@ class LTVController:
         self.profile = VelocityProfile(self.table, speed_fn)
         self.qp = LTVPathFollowingQP(cfg.horizon, self.Ts, cfg.Q, cfg.R, cfg.qp_solver, cfg.jit,
                                      name=f"{ctx.name}_ltv")
-        self.s: float | None = cfg.s0
-        self.theta_t: float | None = None
-        self._t_prev: float | None = None
-        self._rates = (0.0, 0.0)  # (sdot, theta_t rate) of the last command
+        self.vehicle = VirtualVehicle(cfg.s0)
+        """The virtual vehicle s on the path."""
+        self.direction = VirtualVehicle()
+        """The motion direction theta_t, turning at Phi u_R between samples."""
+
+    @property
+    def s(self) -> float | None:
+        return self.vehicle.s
+
+    @property
+    def theta_t(self) -> float | None:
+        return self.direction.s
 
     def _bounds(self, u: np.ndarray, kappa: np.ndarray, alpha_e: float, omega_b: np.ndarray):
         """Bounds (4.34)-(4.35) on U, rewritten on the decision variables (docs/ambiguities.md, A6)."""
@@ -366,14 +374,12 @@ class LTVController:
     def step(self, obs: Observation, inbox: Sequence[PeerMessage]) -> StepResult:
         cfg, N, Ts = self.cfg, self.cfg.horizon, self.Ts
         pose = np.asarray(obs.pose, float)
-        if self.s is None:
-            self.s = self.path.project(pose[:2])
-        if self.theta_t is None:
-            self.theta_t = self.table.pose(self.s)[2]
-        if self._t_prev is not None:
-            dt = max(0.0, obs.t - self._t_prev)
-            self.s += self._rates[0] * dt
-            self.theta_t += self._rates[1] * dt
+        if not self.vehicle.started:
+            self.vehicle.start(self.path.project(pose[:2]))
+        if not self.direction.started:
+            self.direction.start(self.table.pose(self.s)[2])
+        self.vehicle.advance(obs.t)
+        self.direction.advance(obs.t)
         s_j, u_j, k_j = self.profile.lookahead(self.s, N, Ts)
         geo = self.table(s_j)
         tangent = cfg.heading == "tangent"
@@ -394,8 +400,8 @@ class LTVController:
         # the mid-step body heading so the applied (u, v) follows theta_t on average
         th_mid = self.theta_t + 0.5 * Phi * uR * Ts - (pose[2] + 0.5 * omega * Ts)
         cmd = np.array([uR * math.cos(th_mid), uR * math.sin(th_mid), omega])
-        self._t_prev = obs.t
-        self._rates = (sdot, Phi * uR)
+        self.vehicle.hold(obs.t, sdot)
+        self.direction.hold(obs.t, Phi * uR)
         tel = {
             "ref": [xr, yr, float(theta_b)],
             "s": float(self.s),

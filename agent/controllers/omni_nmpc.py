@@ -18,7 +18,7 @@ a speed residual sqrt(w_speed) (|V|^2 - u_R^2) / (2 u_R) (~ |V| - u_R) keeps the
 u_R (docs/controllers-notes.md, N1).
 
 The builders ``build_path_following`` and ``build_trajectory_tracking`` wrap them as
-controllers (contract: ``agent/controllers/base.py``); the leader-following NMPC of
+controllers (contract: :mod:`copath.control`); the leader-following NMPC of
 Sec. 5.3 imports the problem classes directly: a leader uses
 :class:`OmniPathFollowingNMPC` (``solution.sdot`` is the predicted s-dot sequence), a
 follower :class:`OmniTrackingNMPC` with its own reference arrays.

@@ -89,8 +89,9 @@ def test_projection_near_a_guess_stays_on_its_branch_at_a_self_crossing():
     s_a = float(near[0])
     s_b = float([v for v in near if abs(v - s_a) > 1.0][0])
     for s_guess in (s_a, s_b):
-        got = [path.project(path.pos(v), s_guess=v - 0.01, window=0.2) for v in np.linspace(s_guess - 0.1, s_guess + 0.1, 9)]
-        np.testing.assert_allclose(got, np.linspace(s_guess - 0.1, s_guess + 0.1, 9), atol=1e-6)
+        along = np.linspace(s_guess - 0.1, s_guess + 0.1, 9)
+        got = [path.project(path.pos(v), s_guess=v - 0.01, window=0.2) for v in along]
+        np.testing.assert_allclose(got, along, atol=1e-6)
 
 
 # -- path table -----------------------------------------------------------------------

@@ -42,6 +42,7 @@ from typing import Any, Callable
 import numpy as np
 
 from copath.config import ConfigError, from_table
+from copath.metrics_config import MetricsConfig
 from copath.paths import Path
 from copath.scenario import Scenario
 from copath.slots import offset_points, solve_coordinate, switching_offsets, track_coordinate, wrap_near
@@ -203,7 +204,7 @@ def _switching(scenario: Scenario) -> TeamGeometry:
                         lateral=lambda S: {n: offs(n, S[n])[1] for n in S})
 
 
-FORMATION_TOLERANCE_M = 0.05
+FORMATION_TOLERANCE_M = MetricsConfig.formation_tolerance_m
 """A formation change is over when every robot is this close to its new slot [m]
 (``[metrics] formation_tolerance_m``; chosen as the controllers' arrival tolerance)."""
 

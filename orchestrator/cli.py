@@ -230,9 +230,8 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
         path = api.find_scenario(args.config)
         base = api.load(path)
         settings = sweep.plan(axes, seeds)
-        for st in settings:
-            api.load(path, st)
-        if args.inprocess and any(api.load(path, st).run.clock != "lockstep" for st in settings[:1]):
+        scenarios = [api.load(path, st) for st in settings]  # every setting is checked before any run
+        if args.inprocess and any(sc.run.clock != "lockstep" for sc in scenarios):
             raise ConfigError("run.clock = 'realtime' is not allowed with --inprocess; in-process runs are lockstep only")
         if args.jobs is not None and args.jobs < 1:
             raise ConfigError(f"--jobs = {args.jobs} is not allowed; must be >= 1")
@@ -254,8 +253,12 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
         status = "ok" if row.ok else f"FAILED ({row.failure})"
         print(f"  [{n}/{len(settings)}] {what}: {status}, {row.wall_s:.1f} s  (ETA {eta:.0f} s)", file=sys.stderr)
 
-    rows = sweep.run_sweep(path, axes, seeds, out_dir=out, inprocess=args.inprocess, jobs=jobs,
-                           wall_timeout_s=args.wall_timeout, on_done=done)
+    try:
+        rows = sweep.run_sweep(path, axes, seeds, out_dir=out, inprocess=args.inprocess, jobs=jobs,
+                               wall_timeout_s=args.wall_timeout, on_done=done)
+    except KeyboardInterrupt:
+        print(f"copath sweep: interrupted; the finished runs are in {out / 'sweep.csv'}", file=sys.stderr)
+        return 130
     text = sweep.format_summary(rows)
     (out / "summary.txt").write_text(text + "\n")
     print(text)

@@ -143,8 +143,8 @@ def run_sweep(config: str | pathlib.Path, axes: list[tuple[str, list[Any]]], see
         pool = ProcessPoolExecutor(max_workers=jobs, mp_context=multiprocessing.get_context("spawn"))
     else:  # a fleet run waits on its own processes: threads suffice
         pool = ThreadPoolExecutor(max_workers=jobs)
-    with pool:
-        futures: dict[Future, int] = {}
+    futures: dict[Future, int] = {}
+    try:
         for i, s in enumerate(settings):
             rid = f"{base.id}-sweep{stamp}-{i:03d}"
             run_dir = None if inprocess else str(out / f"run{i:03d}")
@@ -159,6 +159,12 @@ def run_sweep(config: str | pathlib.Path, axes: list[tuple[str, list[Any]]], see
             done += 1
             if on_done is not None:
                 on_done(rows[i], done)
+    except KeyboardInterrupt:
+        # no new run starts; the runs under way end on their own (a fleet tears down its processes)
+        pool.shutdown(wait=True, cancel_futures=True)
+        write_csv([r for r in rows if r is not None], out / "sweep.csv")
+        raise
+    pool.shutdown(wait=True)
     final = [r for r in rows if r is not None]
     write_csv(final, out / "sweep.csv")
     return final

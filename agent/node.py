@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import collections
+import dataclasses
 import logging
 import queue
 import sys
@@ -87,6 +88,23 @@ class AgentNode:
             time.sleep(0.0002)
             self._drain_peers()
 
+    def _newest_obs(self) -> Obs | None:
+        """Realtime: the newest observation, carrying the sensor measurements of every
+        observation since the previous step (``[sensing]``: none is lost; one seen twice
+        is ignored by the estimator)."""
+        got = []
+        while True:
+            try:
+                o = self.obs_q.get_nowait()
+            except queue.Empty:
+                break
+            if o is not None:
+                got.append(o)
+        if len(got) < 2 or got[-1].meas is None:
+            return got[-1] if got else self.latest_obs
+        merged = {k: [row for o in got if o.meas for row in o.meas.get(k, [])] for k in ("odom", "fixes", "headings")}
+        return dataclasses.replace(got[-1], meas=merged)
+
     def _drain_peers(self) -> None:
         while self.peers:
             self.rt.receive(self.peers.popleft())
@@ -123,7 +141,7 @@ class AgentNode:
             period = self.rt.dt
             next_t = time.time()
             while not self.ended.is_set():
-                obs = self.latest_obs
+                obs = self._newest_obs()
                 if obs is not None:
                     self._drain_peers()
                     now = time.time() - self.wall_t0

@@ -447,7 +447,11 @@ def parse_scenario(raw: Mapping[str, Any], base_dir: pathlib.Path | None = None,
 
     obstacles = [o for o in (errs.take(lambda: _obstacle(o, f"obstacles[{i}]"))
                              for i, o in enumerate(raw.get("obstacles") or [])) if o is not None]
-    metrics = errs.take(lambda: parse_metrics(raw.get("metrics")), {})
+    metrics = errs.take(lambda: parse_metrics(raw.get("metrics"), tuple(r.name for r in robots)), {})
+    if metrics.get("path_offsets"):
+        for r in robots:
+            errs.check(r.path is not None, f"robots.{r.name}.path", r.path,
+                       "metrics.path_offsets scores each robot along its path: name a table under [paths]")
     targets = errs.take(lambda: parse_targets(raw.get("targets")), ())
     sensing = errs.take(lambda: parse_sensing(raw.get("sensing"), order), SensingConfig())
     if sensing.enabled and any(v > 0 for v in noise.pose_std):

@@ -204,6 +204,19 @@ def _switching(scenario: Scenario) -> TeamGeometry:
                         lateral=lambda S: {n: offs(n, S[n])[1] for n in S})
 
 
+def _declared(scenario: Scenario) -> TeamGeometry:
+    """The geometry the scenario declares in ``[metrics] path_offsets`` (any controller)."""
+    s_d = {n: float(v) for n, v in scenario.metrics["path_offsets"].items()}
+    q = {n: float(v) for n, v in (scenario.metrics.get("lateral_offsets") or {}).items()}
+    paths = {r.name: scenario.paths[r.path] for r in scenario.robots}
+    period = max((p.length for p in paths.values() if p.closed), default=0.0)
+    return TeamGeometry(
+        "declared", paths,
+        xi=lambda S: {n: S[n] - s_d[n] for n in S},
+        slots=lambda x: {n: offset_points(paths[n], x + s_d[n], q.get(n, 0.0)) for n in paths},
+        in_transition=_no_transition, period=period)
+
+
 FORMATION_TOLERANCE_M = MetricsConfig.formation_tolerance_m
 """A formation change is over when every robot is this close to its new slot [m]
 (``[metrics] formation_tolerance_m``; chosen as the controllers' arrival tolerance)."""
@@ -222,7 +235,8 @@ def team_geometry(scenario: Scenario) -> TeamGeometry | None:
     """The team's desired geometry, or None (a single robot, or a family without one)."""
     if len(scenario.robots) < 2:
         return None
-    build = FAMILIES.get(frozenset(r.controller for r in scenario.robots))
+    build = (_declared if scenario.metrics.get("path_offsets")
+             else FAMILIES.get(frozenset(r.controller for r in scenario.robots)))
     if build is None:
         return None
     try:

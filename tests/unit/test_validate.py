@@ -57,6 +57,9 @@ BROKEN = [
      r"robots\.r1\.controller\.type = 'consensos' is not allowed; registered: .*consensus"),
     ("import path to nowhere", lambda s: s.replace('type = "consensus"', 'type = "no_such_pkg.law:build"'),
      r"robots\.r1\.controller\.type = 'no_such_pkg\.law:build' is not allowed; no module named 'no_such_pkg'"),
+    ("declared geometry misses a robot", lambda s: s + '[metrics]\npath_offsets = { r1 = 0.0, r2 = 0.5 }\n',
+     r"metrics\.path_offsets = \{'r1': 0\.0, 'r2': 0\.5\} is not allowed; must give an offset for each robot: "
+     r"r1, r2, r3"),
     ("model the controller cannot drive", lambda s: s.replace('type = "consensus"', 'type = "dmpc"'),
      r"robots\.r1\.model = 'unicycle' is not allowed; controller type 'dmpc' drives: omni"),
 ]

@@ -213,12 +213,13 @@ def _draw_world(ax, view: RunView) -> None:
     ax.grid(True, lw=0.3)
 
 
-def _draw_robots(ax, view: RunView, truth: Truth, alpha: float = 1.0, label: str | None = None) -> list:
+def _draw_robots(ax, view: RunView, truth: Truth, alpha: float = 1.0, label: str | None = None,
+                 links: bool = True) -> list:
     """Footprints, headings and formation links of the robots at one truth tick."""
     artists = []
     colors = view.colors
     pos = {n: p for n, p in zip(truth.names, truth.poses)}
-    links = _links(view, truth.t, pos)
+    links = _links(view, truth.t, pos) if links else []
     if links:
         lc = LineCollection([[pos[a][:2], pos[b][:2]] for a, b in links], colors="0.35", linewidths=0.8,
                             linestyles="--", alpha=alpha, zorder=2)
@@ -253,6 +254,28 @@ def _links(view: RunView, t: float, pos: dict) -> list[tuple[str, str]]:
     return [(a, b) for a, b in view.scenario.edges() if a in pos and b in pos]
 
 
+def _limits(ax, view: RunView) -> None:
+    """Frame the paths and the trajectories (obstacles that drive away are left out)."""
+    pts = [rt.pose[:, :2] for rt in view.trace.robots.values() if len(rt.pose)]
+    pts += [path.pos(np.linspace(0.0, path.length, 200)) for path in view.scenario.paths.values()]
+    if not pts:
+        return
+    allp = np.concatenate(pts)
+    lo, hi = allp.min(axis=0), allp.max(axis=0)
+    r = max((rt.radius for rt in view.trace.robots.values()), default=0.1)
+    pad = 0.05 * float(np.max(hi - lo)) + 2 * r
+    ax.set_xlim(lo[0] - pad, hi[0] + pad)
+    ax.set_ylim(lo[1] - pad, hi[1] + pad)
+
+
+def _targets(ax, view: RunView) -> None:
+    """Each robot's last reported target position (Chapter 6), as a cross."""
+    for n, rt in view.trace.robots.items():
+        last = next((d["target"] for d in reversed(rt.telemetry) if d.get("target") is not None), None)
+        if last is not None and len(last) >= 2:
+            ax.plot(last[0], last[1], "x", color=view.colors.get(n), ms=6, mew=1.5, zorder=5)
+
+
 def snapshot_times(view: RunView, count: int = SNAPSHOTS) -> list[int]:
     """Indices into ``view.truths`` of the snapshot instants."""
     n = len(view.truths)
@@ -265,10 +288,13 @@ def fig_snapshots(view: RunView):
     for n, rt in view.trace.robots.items():
         ax.plot(rt.pose[:, 0], rt.pose[:, 1], color=view.colors.get(n), lw=0.8, alpha=0.6, label=n, zorder=2)
     idx = snapshot_times(view)
+    sparse = len(view.scenario.edges()) <= 2 * len(view.scenario.robots) and view.scenario.network.range_m == 0
     for j, i in enumerate(idx):
         tr = view.truths[i]
-        _draw_robots(ax, view, tr, alpha=0.4 + 0.6 * (j + 1) / len(idx), label=f"t={tr.t:.1f} s")
-    ax.autoscale_view()
+        _draw_robots(ax, view, tr, alpha=0.4 + 0.6 * (j + 1) / len(idx), label=f"t={tr.t:.1f} s",
+                     links=sparse or j == len(idx) - 1)  # dense graphs: links at the last instant only
+    _targets(ax, view)
+    _limits(ax, view)
     if len(view.trace.robots) <= 10:
         ax.legend(fontsize=7, loc="best")
     ax.set_title(f"{view.scenario.id}: snapshots at " + ", ".join(f"{view.truths[i].t:.1f}" for i in idx) + " s",

@@ -17,30 +17,40 @@ FAULTS = {"loss": 0.2, "partitions": [{"links": [["r1", "r2"]], "start_s": 0.5, 
 
 # config prefix -> (run length [s], network overrides, families that must appear)
 CASES = {
-    "e4.2-": (1.5, None, {"tracking", "speeds", "solve_times"}),  # omni NMPC
-    "e4.3-": (1.5, None, {"tracking", "speeds", "solve_times"}),  # LTV MPC (QP)
-    "e4.4-unicycle-nmpc-pf": (1.5, None, {"tracking", "speeds", "solve_times"}),  # unicycle NMPC
-    "e5.1-": (1.5, None, {"tracking", "coordination", "solve_times"}),  # leader-following NMPC
-    "e5.2-": (2.0, FAULTS, {"tracking", "coordination", "solve_times", "faults"}),  # distributed MPC
-    "e5.4-": (2.0, None, {"tracking", "speeds", "coordination"}),  # consensus
-    "e5.7-": (1.5, None, {"tracking", "coordination"}),  # heterogeneous team
-    "e6.5-": (2.0, None, set()),  # roles (Ch. 6)
-    "e6.6-": (2.0, None, {"tracking", "coordination"}),  # formation switching
+    "e4.2-": (1.0, None, {"tracking", "speeds", "solve_times"}),  # omni NMPC
+    "e4.3-": (1.0, None, {"tracking", "speeds", "solve_times"}),  # LTV MPC (QP)
+    "e4.4-unicycle-nmpc-pf": (1.0, None, {"tracking", "speeds", "solve_times"}),  # unicycle NMPC
+    "e5.1-": (1.0, None, {"tracking", "coordination", "solve_times"}),  # leader-following NMPC
+    "e5.2-": (1.5, FAULTS, {"tracking", "coordination", "solve_times", "faults"}),  # distributed MPC
+    "e5.4-": (1.0, None, {"tracking", "speeds", "coordination"}),  # consensus
+    "e5.7-": (1.0, None, {"tracking", "coordination"}),  # heterogeneous team
+    "e6.5-": (1.0, None, set()),  # roles (Ch. 6)
+    "e6.6-": (1.0, None, {"tracking", "coordination"}),  # formation switching
 }
 
 
-def _record(tmp_path, prefix, duration, network):
-    s = load_scenario(config(prefix))
-    if network:
-        s = s.with_overrides(network=network)
-    res = run_scenario(s, duration_s=duration, run_id="plot")
-    return s, write_records(tmp_path / "run.mcap", res.records, s, "plot")
+@pytest.fixture(scope="module")
+def recorded(tmp_path_factory):
+    """prefix -> (scenario, run log) of a short in-process run, each recorded once."""
+    cache = {}
+
+    def get(prefix):
+        if prefix not in cache:
+            duration, network, _ = CASES[prefix]
+            s = load_scenario(config(prefix))
+            if network:
+                s = s.with_overrides(network=network)
+            res = run_scenario(s, duration_s=duration, run_id="plot")
+            cache[prefix] = s, write_records(tmp_path_factory.mktemp("run") / "run.mcap", res.records, s, "plot")
+        return cache[prefix]
+
+    return get
 
 
 @pytest.mark.parametrize("prefix", list(CASES))
-def test_every_applicable_family_renders(tmp_path, prefix):
-    duration, network, must = CASES[prefix]
-    s, log = _record(tmp_path, prefix, duration, network)
+def test_every_applicable_family_renders(tmp_path, recorded, prefix):
+    _, network, must = CASES[prefix]
+    s, log = recorded(prefix)
     files = plot_run(log, tmp_path / "plots", dpi=40)
     names = {f.stem for f in files}
     assert {"snapshots", "velocities"} | must <= names
@@ -53,8 +63,8 @@ def test_every_applicable_family_renders(tmp_path, prefix):
         assert f.read_bytes()[:8] == PNG and f.stat().st_size > 2000, f
 
 
-def test_drops_reconstructed_from_the_log_match_the_closing_accounts(tmp_path):
-    s, log = _record(tmp_path, "e5.2-", 2.0, FAULTS)
+def test_drops_reconstructed_from_the_log_match_the_closing_accounts(recorded):
+    s, log = recorded("e5.2-")
     view = load_run(log)
     ds = drops(view)
     assert ds.accounted is not None and len(ds.t) == ds.accounted > 0
@@ -66,8 +76,8 @@ def test_drops_reconstructed_from_the_log_match_the_closing_accounts(tmp_path):
     assert len(cut) == 2 * ticks
 
 
-def test_animation_is_written_with_a_progress_bar(tmp_path, capsys):
-    _, log = _record(tmp_path, "e5.4-", 1.0, None)
+def test_animation_is_written_with_a_progress_bar(tmp_path, recorded, capsys):
+    _, log = recorded("e5.4-")
     view = load_run(log)
     f = animate_run(view, tmp_path, frames=6, fps=5, progress=True)
     assert f.exists() and f.stat().st_size > 1000 and f.suffix in (".gif", ".mp4")

@@ -46,6 +46,7 @@ class AgentNode:
         self.obs_q: queue.Queue = queue.Queue()
         self.latest_obs: Obs | None = None
         self.peers: collections.deque = collections.deque()
+        self.overheard: collections.deque = collections.deque()  # for the safety filter
         self.started = threading.Event()
         self.ended = threading.Event()
         self.wall_t0 = 0.0
@@ -59,6 +60,10 @@ class AgentNode:
     def _on_peer(self, key: str, rec) -> None:
         if isinstance(rec, PeerEnvelope):
             self.peers.append(rec)
+
+    def _on_overheard(self, key: str, rec) -> None:
+        if isinstance(rec, PeerEnvelope):
+            self.overheard.append(rec)
 
     def _on_sim(self, key: str, rec) -> None:
         if isinstance(rec, Start):
@@ -108,6 +113,8 @@ class AgentNode:
     def _drain_peers(self) -> None:
         while self.peers:
             self.rt.receive(self.peers.popleft())
+        while self.overheard:
+            self.rt.overhear(self.overheard.popleft())
 
     def _emit(self, out) -> None:
         name = self.rt.name
@@ -123,6 +130,8 @@ class AgentNode:
         self.link.subscribe(self.keys.obs(name), self._on_obs)
         for key in self.rt.subscriptions:
             self.link.subscribe(key, self._on_peer)
+        for key in self.rt.overhear_subscriptions:
+            self.link.subscribe(key, self._on_overheard)
         self.link.subscribe(self.keys.start, self._on_sim)
         self.link.subscribe(self.keys.end, self._on_sim)
         self.link.watch_liveliness(self.keys.alive("sim"), self._on_sim_alive)

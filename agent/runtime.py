@@ -10,7 +10,9 @@ feeds it directly, so both run the exact same logic:
 3. the controller steps; an exception inside it is logged and counted and the robot
    stops for that step (it never kills the process);
 4. with ``[safety]`` on, the command passes the decentralised safety filter
-   (``copath.safety``) built from the positions of every accepted envelope;
+   (``copath.safety``), fed with the sender positions of every peer envelope the robot
+   overhears (:attr:`RobotRuntime.overhear_subscriptions`, its own fault streams and the
+   range filter; the controller's inbox is not touched);
 5. its outgoing messages become envelopes on the sender's keys.
 """
 
@@ -33,6 +35,9 @@ from copath.wire.keys import Keys
 from copath.wire.messages import Command, Estimate, Obs, PeerEnvelope, Telemetry, to_plain
 
 logger = logging.getLogger(__name__)
+
+_OVERHEAR_SEED = 7919
+"""Offset of the seed of the safety filter's own fault streams (independent of the controller's)."""
 
 __all__ = ["RobotRuntime", "StepOutput", "sensor_angles"]
 
@@ -99,15 +104,29 @@ class RobotRuntime:
         self.safety = (SafetyGuard(scenario.safety, name, {r.name: r.model for r in scenario.robots}, self.dt,
                                    scenario.sensors.count if scenario.sensors.enabled else 0)
                        if scenario.safety.enabled else None)
-        # fixed graph: the filter also reads the position in non-neighbours' broadcasts
-        self._overheard = (frozenset(scenario.robot_names) - {name} - set(spec.neighbours)
-                           if self.safety is not None and scenario.safety.overhear and self.neighbours is not None
-                           else frozenset())
+        # the filter reads the sender position of every envelope it overhears, through fault
+        # streams of its own (another seed), so the controller's messages are the same with or
+        # without the filter
+        self._overhear = (FaultyInbox(LinkFaults(scenario.network, scenario.run.seed + _OVERHEAR_SEED, name))
+                          if self.safety is not None and scenario.safety.overhear else None)
 
     @property
     def subscriptions(self) -> list[str]:
-        return self.keys.peer_subscriptions(self.name, self.neighbours) + [
-            self.keys.peer_broadcast(n) for n in sorted(self._overheard)]
+        return self.keys.peer_subscriptions(self.name, self.neighbours)
+
+    @property
+    def overhear_subscriptions(self) -> list[str]:
+        """Keys whose envelopes go to :meth:`overhear` (every robot's messages; empty
+        without the safety filter or with ``safety.overhear = false``)."""
+        if self._overhear is None:
+            return []
+        return [self.keys.peer_broadcast("*"), self.keys.peer_direct("*", "*")]
+
+    def overhear(self, env: PeerEnvelope) -> None:
+        """Accept an overheard envelope: only its sender's position and stamp are used."""
+        if self._overhear is not None and env.sender != self.name:
+            self.counters.extra["overheard"] = self.counters.extra.get("overheard", 0) + 1
+            self._overhear.push(env.sender, env.stamp, env)
 
     def missing(self, expect: dict[str, int] | None) -> dict[str, int]:
         """Senders (among those this robot listens to) whose messages have not all
@@ -127,10 +146,6 @@ class RobotRuntime:
         """Accept a peer envelope that arrived (before faults)."""
         if env.sender == self.name:
             return
-        if env.sender in self._overheard:  # for the safety filter only
-            self.counters.extra["overheard"] = self.counters.extra.get("overheard", 0) + 1
-            self.inbox.push(env.sender, env.stamp, env)
-            return
         self.counters.received += 1
         self.received_from[env.sender] = self.received_from.get(env.sender, 0) + 1
         if not self.inbox.push(env.sender, env.stamp, env):
@@ -149,10 +164,8 @@ class RobotRuntime:
             if self.comm_range > 0 and math.hypot(env.pos[0] - pose[0], env.pos[1] - pose[1]) > self.comm_range:
                 self.counters.out_of_range += 1
                 continue
-            if self.safety is not None:
+            if self.safety is not None and self._overhear is None:
                 self.safety.hear(env.sender, env.pos, env.stamp)
-                if env.sender in self._overheard:
-                    continue
             inbox.append(PeerMessage(env.sender, env.kind, env.stamp, now - env.stamp, env.payload, tuple(env.pos),
                                      None if env.cov is None else tuple(env.cov)))
         self.counters.delivered += len(inbox)
@@ -179,6 +192,9 @@ class RobotRuntime:
         solve_ms = (time.perf_counter() - t0) * 1e3
         if self.safety is not None:
             t0 = time.perf_counter()
+            for env in self._overhear.pop_ready(now) if self._overhear is not None else ():
+                if self.comm_range == 0 or math.hypot(env.pos[0] - pose[0], env.pos[1] - pose[1]) <= self.comm_range:
+                    self.safety.hear(env.sender, env.pos, env.stamp)
             res = self.safety.apply(pose, cmd, now, ranges, self._angles)
             cmd = [float(c) for c in res.command]
             telemetry.update(safety_active=res.active, safety_change=res.change,

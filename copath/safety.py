@@ -9,20 +9,21 @@ Wang, Ames and Egerstedt, "Safety barrier certificates for collisions-free multi
 systems", IEEE Trans. Robotics 33(3), 2017, in their decentralised form: each robot solves
 its own small QP with only what it hears and takes half of every pairwise constraint.
 
-Per robot i and heard neighbour j (position ``p_j`` from the neighbour's message, age
-``a_j``), with ``q_i`` the controlled point (the centre of an omni robot, a look-ahead
-point ``l`` ahead of a unicycle's axle centre, Fig. 3.2 kinematics (3.1)/(3.3)):
+Per robot i and heard neighbour j (centre ``p_j`` from the neighbour's message, age
+``a_j``; own centre ``p_i``, kinematics (3.1)/(3.3)):
 
-    h_ij = ||q_i - p_j|| - (r_i + l + r_j + margin + s_j a_j)        (barrier, [m])
-    n_ij^T qdot_i >= -(gamma / 2) h_ij,   n_ij = (q_i - p_j) / ||q_i - p_j||
+    h_ij = ||p_i - p_j|| - (r_i + r_j + margin + s_j a_j)            (barrier, [m])
+    n_ij^T pdot_i >= -(gamma / 2) h_ij,   n_ij = (p_i - p_j) / ||p_i - p_j||
 
 where ``s_j`` bounds the neighbour's speed, so ``s_j a_j`` is the distance it may have
 moved since it sent its position. A range reading (sensor ring, Sec. 4.4.3) gives a point
 ``o`` of an obstacle that does not cooperate: the robot takes the whole constraint
-``n^T qdot_i >= -gamma h``. ``qdot_i = G(theta) u`` is linear in the command, so the filter is
+``n^T pdot_i >= -gamma h``. ``pdot_i = G(theta) u`` is linear in the command (omni: the body
+velocities rotated; unicycle: ``v (cos theta, sin theta)``, so only v is ever constrained and
+omega keeps its nominal value), so the filter is
 the QP
 
-    min_u ||G (u - u_nom)||^2 + eps ||u - u_nom||^2 + rho (sigma + sigma^2)
+    min_u (u - u_nom)^T W (u - u_nom) + rho (sigma + sigma^2)
     s.t.  n^T G u + sigma >= -gamma_share h   (every barrier),  sigma >= 0,
           model limits (omni wheel speeds (3.2); unicycle |v| <= v_max, |omega| <= omega_max),
           optional speed cap |qdot| <= speed_max_mps,
@@ -57,14 +58,12 @@ class SafetyConfig:
 
     enabled: bool = False
     """Filter every robot's command (off unless the scenario turns it on)."""
-    gamma: float = 5.0
-    """Barrier gain gamma [1/s] (chosen): a gap h may close at most at rate gamma h, each robot of
-    a pair taking half; gamma * dt <= 1 keeps the discrete-time step from overshooting."""
-    margin_m: float = 0.03
+    gamma: float | None = None
+    """Barrier gain gamma [1/s]: a gap h may close at most at rate gamma h, each robot of a pair
+    taking half; gamma * dt <= 1 keeps the discrete-time step from overshooting. None: 0.8 / dt
+    (chosen)."""
+    margin_m: float = 0.01
     """Clearance added to the sum of the two footprint radii [m] (chosen)."""
-    lookahead_m: float = 0.05
-    """Unicycles: distance l of the controlled point ahead of the axle centre [m] (chosen, as in
-    the Robotarium's look-ahead mapping); omni robots use their centre."""
     speed_max_mps: float | None = None
     """Speed bound of every filtered robot [m/s]: each filter caps its own robot's speed at it and
     assumes it of its neighbours. None: no cap, neighbours bounded by their model's limit."""
@@ -79,9 +78,8 @@ class SafetyConfig:
     """Exact-penalty weight rho of the barrier slack (chosen)."""
 
     def __post_init__(self) -> None:
-        require(self.gamma > 0, "safety.gamma", self.gamma, "must be > 0")
+        require(self.gamma is None or self.gamma > 0, "safety.gamma", self.gamma, "must be > 0")
         require(self.margin_m >= 0, "safety.margin_m", self.margin_m, "must be >= 0")
-        require(self.lookahead_m > 0, "safety.lookahead_m", self.lookahead_m, "must be > 0")
         require(self.speed_max_mps is None or self.speed_max_mps > 0, "safety.speed_max_mps",
                 self.speed_max_mps, "must be > 0 (or left out for no cap)")
         require(self.max_age_s > 0, "safety.max_age_s", self.max_age_s, "must be > 0")
@@ -154,17 +152,18 @@ class SafetyFilter:
 
     def __init__(self, config: SafetyConfig, model: OmniModel | UnicycleModel, dt: float,
                  capacity: int = 0) -> None:
-        require(config.gamma * dt <= 1.0 + 1e-12, "safety.gamma", config.gamma,
+        require(config.gamma is None or config.gamma * dt <= 1.0 + 1e-12, "safety.gamma", config.gamma,
                 f"must be <= 1/run.dt = {1.0 / dt:g} 1/s so a barrier cannot be overshot in one period")
         self.config = config
         self.model = model
         self.dt = float(dt)
+        self.gamma = config.gamma if config.gamma is not None else 0.8 / self.dt
+        """Barrier gain in use [1/s]."""
         self.omni = isinstance(model, OmniModel)
         self.m = model.command_size
-        self.l = 0.0 if self.omni else config.lookahead_m
-        self.r_eff = model.radius + self.l
-        # command-space weight: point velocity metric G^T G plus a small term on the rest
-        self._W = np.diag([1.0, 1.0, model.L_w**2]) if self.omni else np.diag([1.0, self.l**2])
+        self.r_eff = model.radius
+        # command-space weight W: wheel-speed scale for the turn rate (L_w, or the half axle b)
+        self._W = np.diag([1.0, 1.0, model.L_w**2]) if self.omni else np.diag([1.0, model.b**2])
         # limits as rows L u in [-lim, lim]
         if self.omni:
             self._L = model.M.copy()
@@ -201,30 +200,26 @@ class SafetyFilter:
             self._solver(capacity)
 
     # -- geometry ----------------------------------------------------------------------
-    def point_map(self, theta: float) -> np.ndarray:
-        """G(theta): (2, m) map from the command to the controlled point's world velocity."""
+    def centre_velocity_map(self, theta: float) -> np.ndarray:
+        """G(theta): (2, m) map from the command to the centre's world velocity, (3.1)/(3.3)."""
         c, s = math.cos(theta), math.sin(theta)
         if self.omni:
             return np.array([[c, -s, 0.0], [s, c, 0.0]])
-        return np.array([[c, -self.l * s], [s, self.l * c]])
-
-    def controlled_point(self, pose) -> np.ndarray:
-        x, y, th = (float(v) for v in pose)
-        return np.array([x + self.l * math.cos(th), y + self.l * math.sin(th)])
+        return np.array([[c, 0.0], [s, 0.0]])
 
     def barriers(self, pose, neighbours: Sequence[Neighbour], ranges=None, angles=None
                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Barrier rows: normals n (k, 2), values h (k,) [m] and gains (k,) [1/s] so that
-        ``n @ qdot >= -gain * h`` is each barrier's condition; see the module docstring."""
+        ``n @ pdot >= -gain * h`` is each barrier's condition; see the module docstring."""
         cfg = self.config
-        q = self.controlled_point(pose)
+        q = np.array([float(pose[0]), float(pose[1])])
         pts, dist, gain = [], [], []
         for nb in neighbours:
             if nb.age > cfg.max_age_s:
                 continue
             pts.append(nb.position)
             dist.append(self.r_eff + nb.radius + cfg.margin_m + nb.speed_max * max(nb.age, 0.0))
-            gain.append(0.5 * cfg.gamma)  # its share: the neighbour's filter takes the other half
+            gain.append(0.5 * self.gamma)  # its share: the neighbour's filter takes the other half
         if cfg.use_ranges and ranges is not None and angles is not None:
             x, y, th = (float(v) for v in pose)
             r = np.asarray(ranges, dtype=float)
@@ -234,7 +229,7 @@ class SafetyFilter:
             for ox, oy in zip(x + rr * np.cos(a), y + rr * np.sin(a)):
                 pts.append((ox, oy))
                 dist.append(self.r_eff + cfg.margin_m)
-                gain.append(cfg.gamma)  # an obstacle does not cooperate: the whole constraint
+                gain.append(self.gamma)  # an obstacle does not cooperate: the whole constraint
         if not pts:
             return np.zeros((0, 2)), np.zeros(0), np.zeros(0)
         d = q[None, :] - np.asarray(pts, dtype=float)
@@ -254,7 +249,7 @@ class SafetyFilter:
         u_sat, _ = self.model.saturate(u_nom)  # what the robot would do with the nominal command
         cap_ok = self._cap is None or self.centre_speed(u_sat) <= self._cap * (1 + 1e-9)
         h_min = float(h.min()) if len(h) else math.inf
-        A = n @ self.point_map(float(pose[2]))  # (k, m): n^T G(theta)
+        A = n @ self.centre_velocity_map(float(pose[2]))  # (k, m): n^T G(theta)
         rhs = -gain * h
         if cap_ok and np.all(A @ u_sat >= rhs - 1e-12):
             return SafetyResult(u_nom, False, 0.0, 0.0, h_min)
@@ -319,7 +314,8 @@ class SafetyGuard:
         rows = len(models) - 1 + (sensor_count if config.use_ranges else 0)
         self.filter = SafetyFilter(config, models[name], dt, capacity=rows)
         cap = config.speed_max_mps
-        self._bounds = {n: (m.radius, cap if cap is not None else max_speed(m)) for n, m in models.items()}
+        self._bounds = {n: (m.radius, max_speed(m) if cap is None else min(cap, max_speed(m)))
+                        for n, m in models.items()}
         self._heard: dict[str, tuple[float, float, float]] = {}
         self.interventions = 0
         """Control instants at which the command was changed."""

@@ -21,7 +21,7 @@ The TOML layout (every table optional unless said)::
     [[obstacles]] vertices = [[x, y], ...], velocity = [vx, vy] (optional)
     [metrics]   coordination_pairs = "all" | "edges", formation_tolerance_m, task_tolerance_m
                 (copath.metrics_config; docs/metrics.md)
-    [safety]    enabled, gamma, margin_m, lookahead_m, speed_max_mps, ... (copath.safety)
+    [safety]    enabled, gamma, margin_m, speed_max_mps, overhear, ... (copath.safety)
     [targets]   metric key = threshold, e.g. coordination_error_max_m = 0.1 (copath.targets)
 
 Controller parameters whose key ends in ``_file`` (a string) or ``_files`` (a list) are
@@ -459,7 +459,8 @@ def parse_scenario(raw: Mapping[str, Any], base_dir: pathlib.Path | None = None,
                    list(noise.pose_std), "must be 0 when a [sensing] profile is not ideal (the profile models the noise)")
     safety = errs.take(lambda: from_table(SafetyConfig, raw.get("safety"), "safety"), SafetyConfig())
     if run is not None:
-        errs.check(not safety.enabled or safety.gamma * run.dt <= 1.0 + 1e-12, "safety.gamma", safety.gamma,
+        errs.check(not safety.enabled or safety.gamma is None or safety.gamma * run.dt <= 1.0 + 1e-12,
+                   "safety.gamma", safety.gamma,
                    f"must be <= 1/run.dt = {1.0 / run.dt:g} 1/s so a barrier cannot be overshot in one period")
     _cross_field(run, robots, errs)
     scenario = Scenario(

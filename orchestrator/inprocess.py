@@ -58,6 +58,8 @@ def run_scenario(scenario: Scenario, duration_s: float | None = None, run_id: st
     robots = {n: RobotRuntime(scenario, n, keys) for n in scenario.robot_names}
     subs = {n: r.subscriptions for n, r in robots.items()}
     receivers_of: dict[str, list[str]] = {}  # key -> subscribed robots, computed once per key
+    overhear = {n: r.overhear_subscriptions for n, r in robots.items() if r.overhear_subscriptions}
+    overhearers_of: dict[str, list[str]] = {}  # the same for the safety filter's subscriptions
     records: list[tuple[int, str, Any]] = []
 
     def publish(t: float, key: str, rec: Any) -> None:
@@ -81,6 +83,11 @@ def run_scenario(scenario: Scenario, duration_s: float | None = None, run_id: st
                     receivers_of[key] = [r for r, patterns in subs.items() if r != n and _matches(key, patterns)]
                 for r in receivers_of[key]:
                     robots[r].receive(env)
+                if overhear:
+                    if key not in overhearers_of:
+                        overhearers_of[key] = [r for r, p in overhear.items() if r != n and _matches(key, p)]
+                    for r in overhearers_of[key]:
+                        robots[r].overhear(env)
             publish(t, keys.cmd(n), out.command)
             publish(t, keys.telemetry(n), out.telemetry)
             if out.estimate is not None:

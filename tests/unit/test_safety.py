@@ -81,12 +81,14 @@ def test_head_on_with_stale_positions_is_kept_apart():
     assert dmin >= 2 * model.radius
 
 
-def test_unicycles_with_an_offset_pass_each_other():
-    # the look-ahead point lets a unicycle steer around instead of only braking
+def test_unicycle_filter_changes_only_the_forward_speed():
+    # the centre of a unicycle moves along its heading: the barrier constrains v, omega stays nominal
     model = UnicycleModel()
-    dmin, results = _pair_run(model, [0.3, 0.0], [0.0, 0.02, 0.0], [3.0, 0.0, math.pi], 0.1, 150)
+    dmin, results = _pair_run(model, [0.3, 0.1], [0.0, 0.02, 0.0], [0.6, 0.0, math.pi], 0.1, 60)
     assert dmin >= 2 * model.radius
-    assert any(r.active for r in results)
+    active = [r for r in results if r.active]
+    assert active and all(r.command[1] == pytest.approx(0.1, abs=1e-6) for r in active)
+    assert any(r.command[0] < 0.3 - 1e-3 for r in active)
 
 
 @pytest.mark.parametrize("seed", range(5))

@@ -1,0 +1,118 @@
+"""The safety filter in closed loop (one process, ``run_scenario``): robots that collide
+without it are kept apart with it, with every controller family's command left unchanged
+when nobody is close (docs/safety.md)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from copath.control import Outgoing, StepResult
+from copath.scenario import load_scenario, parse_scenario
+from orchestrator.inprocess import run_scenario
+from tests.conftest import config
+
+FAULTS = {"delay_ms": 100.0, "loss": 0.2}
+
+
+def _five(on: bool, network=None, duration=20.0):
+    s = load_scenario(config("e5.2-dmpc-five-robots"))
+    over = {"safety": {"enabled": on}, "controller": {"jit": False}}
+    if network:
+        over["network"] = network
+    return run_scenario(s.with_overrides(**over), duration_s=duration).metrics
+
+
+def _interventions(m) -> int:
+    return sum(r["safety_interventions"] or 0 for r in m["robots"].values())
+
+
+def test_five_robot_dmpc_collides_without_the_filter_and_not_with_it():
+    off, on = _five(False), _five(True)
+    assert off["fleet"]["collisions"] >= 1  # the start really is dangerous
+    assert on["fleet"]["collisions"] == 0
+    assert on["fleet"]["min_separation_m"] >= 0.4  # two omni discs of 0.2 m
+    assert _interventions(on) > 0 and _interventions(off) == 0
+    # the formation is still reached: coordination after settle_s no worse than without
+    assert on["fleet"]["coordination_error_max_m"] <= max(0.1, off["fleet"]["coordination_error_max_m"])
+    for r in on["robots"].values():
+        assert r["limit_violations"] == 0  # the filtered command respects the wheel limits
+        assert r["safety_ms_p50"] is not None and r["safety_ms_p50"] < 5.0
+
+
+@pytest.mark.slow
+def test_five_robot_dmpc_with_delay_and_loss_keeps_apart():
+    on = _five(True, FAULTS)
+    assert on["fleet"]["collisions"] == 0
+    assert on["fleet"]["messages_dropped_by_faults"] > 0
+    assert on["fleet"]["coordination_error_max_m"] <= 0.3
+
+
+@pytest.mark.parametrize("network", [None, FAULTS])
+def test_twelve_unicycles_crossing_a_circle_never_collide(network):
+    s = load_scenario(config("e5.6-circle-swap"))
+    over = {"network": network} if network else {}
+    off = run_scenario(s.with_overrides(safety={"enabled": False}, **over), duration_s=10.0).metrics
+    on = run_scenario(s.with_overrides(**over), duration_s=10.0).metrics
+    assert off["fleet"]["collisions"] >= 12  # all twelve meet at the centre
+    assert on["fleet"]["collisions"] == 0
+    assert on["fleet"]["min_separation_m"] >= 0.12
+    assert all(r["safety_interventions"] > 0 for r in on["robots"].values())
+
+
+# -- user controllers, unchanged: drive straight along the heading at 0.5 m/s -------------
+
+class _Straight:
+    talk = False
+
+    def __init__(self, ctx) -> None:
+        self.omni = ctx.model.kind == "omni"
+
+    def step(self, obs, inbox):
+        cmd = [0.5, 0.0, 0.0] if self.omni else [0.5, 0.0]
+        out = [Outgoing("follower_status", {"tracking_error": 0.0})] if self.talk else []
+        return StepResult(np.array(cmd), out, {})
+
+
+class _TalkingStraight(_Straight):
+    talk = True
+
+
+def build_silent(ctx):
+    return _Straight(ctx)
+
+
+def build_talking(ctx):
+    return _TalkingStraight(ctx)
+
+
+def _head_on(model, builder, safety, sensors=None, n=2):
+    robots = []
+    for i in range(n):  # n robots on a circle of radius 1 m, all facing its centre
+        a = 2 * math.pi * i / n
+        robots.append({"name": f"r{i + 1}", "model": model, "pose": [math.cos(a), math.sin(a), a + math.pi]})
+    raw = {"id": "head-on", "run": {"duration_s": 6.0, "dt": 0.1},
+           "controller": {"type": f"tests.closed_loop.test_safety:{builder}"},
+           "robots": robots, "safety": safety, "sensors": sensors or {}}
+    return run_scenario(parse_scenario(raw)).metrics
+
+
+@pytest.mark.parametrize("model", ["omni", "unicycle"])
+def test_user_controller_robots_driving_head_on_are_kept_apart(model):
+    off = _head_on(model, "build_talking", {"enabled": False}, n=4)
+    assert off["fleet"]["collisions"] >= 1
+    # robots with no graph: the position in every broadcast envelope is overheard
+    on = _head_on(model, "build_talking", {"enabled": True}, n=4)
+    assert on["fleet"]["collisions"] == 0
+    assert all(r["safety_interventions"] > 0 for r in on["robots"].values())
+
+
+def test_silent_user_controller_is_kept_apart_by_range_readings():
+    # a controller that sends nothing is never heard; the sensor ring still sees the others
+    sensors = {"enabled": True, "count": 12, "max_range_m": 0.5}
+    off = _head_on("unicycle", "build_silent", {"enabled": False}, sensors)
+    assert off["fleet"]["collisions"] >= 1
+    on = _head_on("unicycle", "build_silent", {"enabled": True}, sensors)
+    assert on["fleet"]["collisions"] == 0

@@ -12,7 +12,9 @@ topic                Foxglove type           content
 ``/viz/plans``       ``foxglove.SceneUpdate``  each controller's reference point and the
                                              predicted horizons it broadcasts: the DMPC
                                              assumed trajectory (Algorithm 5.1, step 2) and
-                                             the leader's planned speeds (Sec. 5.3)
+                                             the leader's planned speeds (Sec. 5.3); a
+                                             ``plan`` ([[x, y, ...], ...]) in a controller's
+                                             telemetry takes precedence
 ``/viz/formation``   ``foxglove.SceneUpdate``  formation targets (followers' references,
                                              Ch. 6 target positions) with the task each
                                              robot is assigned
@@ -105,6 +107,10 @@ def _segments(pairs, color: fm.Color, thickness: float = 2.0) -> fm.LinePrimitiv
 
 def _entity(t: float, ident: str, **prims) -> fm.SceneEntity:
     return fm.SceneEntity(timestamp=_time(t), frame_id=FRAME, id=ident, lifetime=_FOREVER, **prims)
+
+
+def _is_points(v) -> bool:
+    return isinstance(v, list) and len(v) > 1 and all(isinstance(q, list) and len(q) >= 2 for q in v)
 
 
 def _log(t: float, level: fm.LogLevel, name: str, message: str) -> fm.Log:
@@ -219,10 +225,13 @@ class VizBuilder:
         for n in self.names:
             i = self.index[n]
             lines, spheres, arrows = [], [], []
+            tel = self.telemetry.get(n, {})
             plan = self.plans.get(n)
+            if _is_points(tel.get("plan")):  # a predicted horizon the controller reports itself
+                plan = np.asarray([q[:2] for q in tel["plan"]], dtype=float)
             if plan is not None and len(plan) > 1:
                 lines.append(_line(plan, _color(i, 0.9), 4.0))
-            ref = self.telemetry.get(n, {}).get("ref")
+            ref = tel.get("ref")
             if ref is not None and len(ref) >= 2:
                 d = 0.6 * self.radii.get(n, 0.1)
                 spheres.append(fm.SpherePrimitive(pose=_pose(ref[0], ref[1]), size=fm.Vector3(x=d, y=d, z=d),

@@ -147,3 +147,20 @@ def test_process_logs_become_foxglove_logs(tmp_path, dmpc_faults):
                                      ("r1", "UNKNOWN", "Traceback (most recent call last):"),
                                      ("r1", "INFO", "done"), ("sim", "UNKNOWN", "solver says hello")])
     assert len(read_log(path).records) == 50  # the views are not run messages
+
+
+def test_a_plan_in_telemetry_is_drawn_as_the_robots_horizon(tmp_path):
+    from copath.wire.keys import Keys
+    from copath.wire.messages import Telemetry, Truth
+
+    s = load_scenario(config("e4.2-"))
+    keys = Keys("plan")
+    path = tmp_path / "run.mcap"
+    rec = Recorder(path, keys, {}, s)
+    plan = [[0.0, 0.0, 0.0], [0.1, 0.0, 0.0], [0.2, 0.05, 0.1]]
+    rec.write(keys.telemetry("r1"), Telemetry(0, 0.0, {"ref": [0.0, 0.0, 0.0], "plan": plan}).pack(), 1)
+    rec.write(keys.truth, Truth(0, 0.0, ["r1"], [[0.0, 0.0, 0.0]], [[0.0, 0.0, 0.0]], [False], [0.0]).pack(), 2)
+    rec.finish()
+    ent = _decode_viz(path)["/viz/plans"][-1]["entities"][0]
+    pts = [(p.get("x", 0.0), p.get("y", 0.0)) for p in ent["lines"][0]["points"]]
+    assert ent["id"] == "plan/r1" and pts == [(0.0, 0.0), (0.1, 0.0), (0.2, 0.05)]

@@ -158,11 +158,6 @@ class _SensingTable:
     profile: str = "ideal"
     estimator: bool = True
     solve_time_s: float = 0.0
-    gate_prob: float = 0.999
-    max_delay_s: float = 0.5
-    odom_std_min: float = 0.005
-    bias_std0_rad: float = 0.1
-    bias_walk_min: float = 1e-4
 
 
 @dataclass(frozen=True)
@@ -221,7 +216,12 @@ def parse_sensing(table: Mapping[str, Any] | None, robot_names: Sequence[str] = 
     profiles_raw = table.pop("profiles", {}) or {}
     require(isinstance(robots, dict), "sensing.robots", robots, "expected a table robot = \"profile\"")
     require(isinstance(profiles_raw, dict), "sensing.profiles", profiles_raw, "expected tables [sensing.profiles.NAME]")
-    flat = from_table(_SensingTable, table, "sensing")
+    filter_keys = {f.name for f in fields(EstimatorConfig)}
+    allowed = filter_keys | {f.name for f in fields(_SensingTable)} | {"robots", "profiles"}
+    for k, v in table.items():
+        require(k in allowed, f"sensing.{k}", v, f"allowed keys: {', '.join(sorted(allowed))}")
+    flat = from_table(_SensingTable, {k: v for k, v in table.items() if k not in filter_keys}, "sensing")
+    filt = from_table(EstimatorConfig, {k: v for k, v in table.items() if k in filter_keys}, "sensing")
     profiles: dict[str, SensorProfile] = {}
     for pname, ptab in profiles_raw.items():
         require(isinstance(ptab, dict), f"sensing.profiles.{pname}", ptab, "expected a table of sensor keys")
@@ -231,12 +231,16 @@ def parse_sensing(table: Mapping[str, Any] | None, robot_names: Sequence[str] = 
         base = ptab.pop("base", "ideal")
         require(base in BUILTIN_PROFILES, f"sensing.profiles.{pname}.base", base,
                 f"allowed: {', '.join(sorted(BUILTIN_PROFILES))}")
-        over = from_table(SensorProfile, ptab, f"sensing.profiles.{pname}")
+        try:
+            over = from_table(SensorProfile, ptab, f"sensing.profiles.{pname}")
+        except ConfigError as exc:  # SensorProfile names its keys sensing.<key>: say which profile
+            msg = str(exc)
+            raise ConfigError(msg if msg.startswith("sensing.profiles.") else
+                              msg.replace("sensing.", f"sensing.profiles.{pname}.", 1)) from None
         profiles[pname] = replace(BUILTIN_PROFILES[base], **{k: getattr(over, k) for k in ptab})
     for r, p in robots.items():
         require(not robot_names or r in robot_names, f"sensing.robots.{r}", p, "must name a robot of this scenario")
         require(isinstance(p, str), f"sensing.robots.{r}", p, "expected a profile name")
-    filt = EstimatorConfig(flat.gate_prob, flat.max_delay_s, flat.odom_std_min, flat.bias_std0_rad, flat.bias_walk_min)
     cfg = SensingConfig(flat.profile, dict(robots), profiles, flat.estimator, flat.solve_time_s, filt)
     for kind in ("omni", "unicycle"):  # every name resolves
         cfg.profile_for("", kind)

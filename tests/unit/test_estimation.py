@@ -190,7 +190,7 @@ def test_custom_profile_starts_from_its_base():
 @pytest.mark.parametrize("table,needle", [
     ({"profile": "fancy"}, "sensing.profile = 'fancy' is not allowed; profiles:"),
     ({"robots": {"r9": "ideal"}}, "sensing.robots.r9 = 'ideal' is not allowed; must name a robot"),
-    ({"profiles": {"cam": {"fix_std_m": -1.0}}}, "sensing.fix_std_m = -1.0 is not allowed"),
+    ({"profiles": {"cam": {"fix_std_m": -1.0}}}, "sensing.profiles.cam.fix_std_m = -1.0 is not allowed"),
     ({"profiles": {"cam": {"fix_sdt_m": 1.0}}}, "sensing.profiles.cam.fix_sdt_m = 1.0 is not allowed; allowed keys"),
     ({"profiles": {"cam": {"base": "nope"}}}, "sensing.profiles.cam.base = 'nope' is not allowed"),
     ({"gate_prob": 1.5}, "sensing.gate_prob = 1.5 is not allowed"),

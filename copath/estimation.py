@@ -169,6 +169,7 @@ class SensingConfig:
         estimator = true               # an EKF in every robot (false: the latest raw reading)
         solve_time_s = 0.0             # solve-time compensation: predict this far ahead
         robots = { r2 = "ideal" }      # per-robot profile
+        gate_prob = 0.999              # and the other EstimatorConfig keys (filter tuning)
         [sensing.profiles.noisy]       # a custom profile: SensorProfile keys,
         base = "realistic-unicycle"    # starting from a built-in profile (default "ideal")
         fix_std_m = 0.05

@@ -144,13 +144,14 @@ def run_fleet(scenario: Scenario, opts: RunOptions) -> RunOutcome:
                    "python": sys.version.split()[0]},
     }
     router = ZenohLink.open(SessionConfig(mode="router", listen=tuple(listen), connect=tuple(opts.connect)))
-    live = None
+    live = tail = None
     if opts.live_port is not None:
-        from .live import LiveViz
+        from .live import LiveViz, LogTail
         from .viz import TOPICS
 
         live = LiveViz(opts.live_port)
         live.advertise(TOPICS)
+        tail = LogTail(out / "logs", live).start()  # process log lines, live
         logger.info("live views on %s (Foxglove: Open connection -> Foxglove WebSocket)", live.url)
     recorder = Recorder(out / "run.mcap", keys, metadata, scenario, live=live)
     router.subscribe_raw(keys.all, recorder.write)
@@ -216,6 +217,7 @@ def run_fleet(scenario: Scenario, opts: RunOptions) -> RunOutcome:
         recorder.add_process_logs(out / "logs")
         recorder.finish({"outcome": {"ok": str(ok), "reason": reason}})
         if live is not None:
+            tail.stop()
             live.close()
     wall = time.monotonic() - wall0
     log = read_log(out / "run.mcap")

@@ -22,9 +22,9 @@ from copath.wire.keys import Keys
 from copath.wire.messages import WireError, unpack
 
 from .mcaplog import iter_raw, read_log
-from .viz import VizBuilder
+from .viz import VizBuilder, log_line
 
-__all__ = ["LiveViz", "DEFAULT_PORT", "serve_log"]
+__all__ = ["LiveViz", "LogTail", "DEFAULT_PORT", "serve_log"]
 
 DEFAULT_PORT = 8765
 """Foxglove's default WebSocket port."""
@@ -67,6 +67,59 @@ class LiveViz:
 
     def close(self) -> None:
         self.server.stop()
+
+
+class LogTail:
+    """Follows the processes' logs (``log_dir/*.log``) and hands each new complete line to
+    ``sink`` as ``foxglove.Log`` on ``/viz/log`` while a run goes on (the recorder writes
+    the whole logs into ``run.mcap`` at the end of the run)."""
+
+    def __init__(self, log_dir: str | pathlib.Path, sink, period_s: float = 0.5) -> None:
+        self.dir = pathlib.Path(log_dir)
+        self.sink = sink
+        self.period_s = period_s
+        self._pos: dict[pathlib.Path, int] = {}
+        self._last: dict[pathlib.Path, int] = {}
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="copath-log-tail", daemon=True)
+        self.lines = 0
+
+    def start(self) -> "LogTail":
+        self._thread.start()
+        return self
+
+    def poll(self) -> int:
+        """Send the lines completed since the last poll; returns how many."""
+        n = 0
+        for f in sorted(self.dir.glob("*.log")):
+            pos = self._pos.get(f, 0)
+            try:
+                with f.open("rb") as fh:
+                    fh.seek(pos)
+                    chunk = fh.read()
+            except OSError:
+                continue
+            end = chunk.rfind(b"\n")
+            if end < 0:
+                continue
+            self._pos[f] = pos + end + 1
+            for raw in chunk[:end].decode(errors="replace").splitlines():
+                if raw.strip():
+                    t, msg = log_line(raw, f.stem, self._last.get(f, time.time_ns()))
+                    self._last[f] = t
+                    self.sink.log("/viz/log", msg, t)
+                    n += 1
+        self.lines += n
+        return n
+
+    def _run(self) -> None:
+        while not self._stop.wait(self.period_s):
+            self.poll()
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=5.0)
+        self.poll()
 
 
 def serve_log(mcap_path: str | pathlib.Path, live: LiveViz, *, speed: float = 1.0,

@@ -49,7 +49,7 @@ from copath.scenario import Scenario
 from copath.wire.keys import Keys
 from copath.wire.messages import End, Event, Obs, PeerEnvelope, Telemetry, Truth
 
-__all__ = ["TOPICS", "VizBuilder", "McapVizSink", "process_log_messages"]
+__all__ = ["TOPICS", "VizBuilder", "McapVizSink", "log_line", "process_log_messages"]
 
 FRAME = "world"
 
@@ -322,27 +322,33 @@ _LEVELS = {"DEBUG": fm.LogLevel.Debug, "INFO": fm.LogLevel.Info, "WARNING": fm.L
            "ERROR": fm.LogLevel.Error, "CRITICAL": fm.LogLevel.Fatal}
 
 
-def process_log_messages(log_dir: str | pathlib.Path, default_ns: int) -> Iterator[tuple[int, fm.Log]]:
-    """(wall time [ns], ``foxglove.Log``) of every line of every ``*.log`` in ``log_dir``.
+def log_line(raw: str, name: str, last_ns: int) -> tuple[int, fm.Log]:
+    """One line of a process log as (wall time [ns], ``foxglove.Log``).
 
     Lines in the processes' logging format (``asctime name LEVEL message``, local time)
-    keep their time and level; other lines (tracebacks, solver output) take the time of
-    the line before them (``default_ns`` for the first ones) and the level Unknown.
+    keep their time and level; other lines (tracebacks, solver output) take ``last_ns``
+    (the time of the line before them) and the level Unknown.
     """
+    m = _LINE.match(raw)
+    if m:
+        stamp = _dt.datetime.strptime(m.group(1), "%Y-%m-%d %H:%M:%S").timestamp()
+        t = int(stamp * 1e9) + int(m.group(2)) * 1_000_000
+        level, msg = _LEVELS[m.group(4)], m.group(5)
+    else:
+        t, level, msg = last_ns, fm.LogLevel.Unknown, raw
+    return t, fm.Log(timestamp=fm.Timestamp(t // 1_000_000_000, t % 1_000_000_000), level=level, message=msg,
+                     name=name, file=f"{name}.log")
+
+
+def process_log_messages(log_dir: str | pathlib.Path, default_ns: int) -> Iterator[tuple[int, fm.Log]]:
+    """(wall time [ns], ``foxglove.Log``) of every line of every ``*.log`` in ``log_dir``
+    (:func:`log_line`; ``default_ns`` for lines before the first stamped one)."""
     for f in sorted(pathlib.Path(log_dir).glob("*.log")):
         last = default_ns
         for raw in f.read_text(errors="replace").splitlines():
-            if not raw.strip():
-                continue
-            m = _LINE.match(raw)
-            if m:
-                stamp = _dt.datetime.strptime(m.group(1), "%Y-%m-%d %H:%M:%S").timestamp()
-                last = int(stamp * 1e9) + int(m.group(2)) * 1_000_000
-                level, msg = _LEVELS[m.group(4)], m.group(5)
-            else:
-                level, msg = fm.LogLevel.Unknown, raw
-            yield last, fm.Log(timestamp=fm.Timestamp(last // 1_000_000_000, last % 1_000_000_000), level=level,
-                               message=msg, name=f.stem, file=f.name)
+            if raw.strip():
+                last, msg = log_line(raw, f.stem, last)
+                yield last, msg
 
 
 class McapVizSink:

@@ -164,3 +164,22 @@ def test_a_plan_in_telemetry_is_drawn_as_the_robots_horizon(tmp_path):
     ent = _decode_viz(path)["/viz/plans"][-1]["entities"][0]
     pts = [(p.get("x", 0.0), p.get("y", 0.0)) for p in ent["lines"][0]["points"]]
     assert ent["id"] == "plan/r1" and pts == [(0.0, 0.0), (0.1, 0.0), (0.2, 0.05)]
+
+
+def test_log_tail_sends_complete_lines_once(tmp_path):
+    from orchestrator.live import LogTail
+
+    got = []
+
+    class Sink:
+        def log(self, topic, msg, t):
+            got.append((topic, t))
+
+    f = tmp_path / "r1.log"
+    f.write_text("2026-01-02 03:04:05,678 r1 INFO one\npartial")
+    tail = LogTail(tmp_path, Sink())
+    assert tail.poll() == 1 and got[0][0] == "/viz/log"
+    with f.open("a") as fh:
+        fh.write(" line\n2026-01-02 03:04:06,000 r1 WARNING two\n")
+    assert tail.poll() == 2 and tail.poll() == 0
+    assert got[1][1] == got[0][1] and got[2][1] - got[0][1] == 322_000_000  # the unstamped line keeps the time

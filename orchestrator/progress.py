@@ -91,7 +91,7 @@ class Progress:
             return f"  {self.starting} ... {_clock(f['wall'])}"
         frac = min(1.0, self.sim_t / self.duration) if self.duration > 0 else 1.0
         bar = "#" * int(20 * frac) + "-" * (20 - int(20 * frac))
-        parts = [f"  [{bar}] {f['sim_t']:6.1f}/{self.duration:.1f} s sim"]
+        parts = [f"  [{bar}] {int(100 * frac):3d}%  {f['sim_t']:6.1f}/{self.duration:.1f} s sim"]
         parts.append(f"x{f['rtf']:.2f} real time" if f["rtf"] else "x- real time")
         if f["msgs_per_s"] is not None:
             parts.append(f"{f['msgs_per_s']:6.0f} msg/s")

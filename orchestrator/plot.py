@@ -18,6 +18,7 @@ file                content                                                     
 ``solve_times.png`` controller solve time per step                                an MPC
 ``faults.png``      messages dropped by the fault layer over time, partitions     faults
                     shaded
+``tasks.png``       the task (formation) each robot works on, when it got there   a ``task``
 ``estimation.png``  each robot's pose estimate against the truth: position and    [sensing]
                     heading error with their 3-sigma bounds, NEES                 estimator
                     (orchestrator/metrics_estimation.py, docs/sensing.md)
@@ -486,6 +487,25 @@ def fig_estimation(view: RunView):
     return fig
 
 
+def fig_tasks(view: RunView):
+    fig, ax = plt.subplots(figsize=(8, 3.5))
+    for n, rt in view.trace.robots.items():
+        t, task = _telemetry_series(rt, "task")
+        if len(t):
+            ax.step(t, task, where="post", color=view.colors.get(n), lw=1, label=n)
+            done = [tt for tt, d in zip(rt.telemetry_t, rt.telemetry) if d.get("task_done")]
+            if done:
+                ax.plot(done[0], task[np.searchsorted(t, done[0], side="right") - 1], "o", color=view.colors.get(n),
+                        ms=4)
+    ax.set_xlabel("t [s]")
+    ax.set_ylabel("task index")
+    ax.grid(True, lw=0.3)
+    if len(view.trace.robots) <= 16:
+        ax.legend(fontsize=6, ncol=8)
+    ax.set_title("task (formation) each robot works on (controller telemetry); dot: its target reached", fontsize=9)
+    return fig
+
+
 def _has_telemetry(view: RunView, name: str) -> bool:
     return any(isinstance(d.get(name), (int, float, list)) for rt in view.trace.robots.values() for d in rt.telemetry)
 
@@ -502,6 +522,7 @@ FAMILIES: dict[str, tuple[Callable[[RunView], bool], Callable[[RunView], Any]]] 
     "coordination": (_has_team, fig_coordination),
     "solve_times": (lambda v: any(np.any(ms > 0) for _, ms in v.solve.values()), fig_solve_times),
     "faults": (lambda v: drops(v) is not None, fig_faults),
+    "tasks": (lambda v: _has_telemetry(v, "task"), fig_tasks),
     "estimation": (lambda v: any(v.trace.estimates.values()), fig_estimation),
 }
 """Figure family -> (applies to this run?, draw)."""

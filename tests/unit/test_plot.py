@@ -24,8 +24,8 @@ CASES = {
     "e5.2-": (1.5, FAULTS, {"tracking", "coordination", "solve_times", "faults"}),  # distributed MPC
     "e5.4-": (1.0, None, {"tracking", "speeds", "coordination"}),  # consensus
     "e5.7-": (1.0, None, {"tracking", "coordination"}),  # heterogeneous team
-    "e6.5-": (1.0, None, set()),  # roles (Ch. 6)
-    "e6.6-": (1.0, None, {"tracking", "coordination"}),  # formation switching
+    "e6.5-": (1.0, None, {"tasks"}),  # roles (Ch. 6)
+    "e6.6-": (1.0, None, {"tracking", "coordination", "tasks"}),  # formation switching
 }
 
 

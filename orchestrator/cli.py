@@ -448,7 +448,8 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--loss", type=float, metavar="P", help="robot-to-robot loss probability")
     r.add_argument("--run-id", help="run id (letters, digits, '_-.') [scenario-time-random]")
     r.add_argument("--wall-timeout", type=float, metavar="S", help="give up after S wall seconds")
-    r.add_argument("--inprocess", action="store_true", help="run in this process (lockstep, no Zenoh, no MCAP)")
+    r.add_argument("--inprocess", action="store_true",
+                   help="run in this process (lockstep, no Zenoh); the log is written from memory")
     r.add_argument("-e", "--connect", action="append", default=[], metavar="ENDPOINT",
                    help="endpoint the run's router connects to (multi-host runs), e.g. tcp/10.0.0.2:7447")
     r.add_argument("-l", "--listen", action="append", default=[], metavar="ENDPOINT",

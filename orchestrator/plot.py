@@ -163,10 +163,7 @@ def _truth_series(view: RunView):
         from .metrics_truth import truth_series  # noqa: PLC0415
     except ImportError:  # older trees: telemetry only
         return None
-    try:
-        return truth_series(view.trace, view.scenario)
-    except Exception:  # a family without a geometry the series understands
-        return None
+    return truth_series(view.trace, view.scenario)  # None for a team without a geometry
 
 
 def drops(view: RunView) -> DropSeries | None:

@@ -1,12 +1,18 @@
 """Foxglove views: every /viz message in a run log decodes with the schema Foxglove
 publishes for its type (the protobuf FileDescriptorSet foxglove-sdk ships, stored in the
-log) and carries what the run shows: robots, plans, targets, rays, links, faults, logs."""
+log), validates in its JSON form against Foxglove's published JSON schema
+(tests/data/foxglove_jsonschema), and carries what the run shows: robots, plans, targets,
+rays, links, faults, logs."""
 
 from __future__ import annotations
 
+import base64
 import collections
 import datetime
+import json
+import pathlib
 
+import jsonschema
 import pytest
 from google.protobuf import descriptor_pb2, descriptor_pool, json_format, message_factory
 from mcap.reader import make_reader
@@ -17,12 +23,51 @@ from orchestrator.mcaplog import Recorder, read_log, write_records
 from orchestrator.viz import TOPICS, process_log_messages
 from tests.conftest import config
 
+JSON_SCHEMAS = pathlib.Path(__file__).resolve().parents[1] / "data" / "foxglove_jsonschema"
+_WKT_TIME = ("google.protobuf.Timestamp", "google.protobuf.Duration")
 PARTITION = {"links": [["r1", "r2"]], "start_s": 0.5, "end_s": 1.0}
 
 
+def _foxglove_json(msg) -> dict:
+    """A decoded protobuf message in Foxglove's JSON form: every field, times as
+    {sec, nsec}, enums as integers, bytes as base64."""
+    out = {}
+    for f in msg.DESCRIPTOR.fields:
+        v = getattr(msg, f.name)
+        if f.message_type is not None and f.message_type.full_name in _WKT_TIME:
+            conv = lambda x: {"sec": x.seconds, "nsec": x.nanos}  # noqa: E731
+        elif f.message_type is not None:
+            conv = _foxglove_json
+        elif isinstance(v, bytes):
+            conv = lambda x: base64.b64encode(x).decode()  # noqa: E731
+        else:
+            conv = lambda x: x  # noqa: E731
+        repeated = f.is_repeated if hasattr(f, "is_repeated") else f.label == f.LABEL_REPEATED
+        out[f.name] = [conv(x) for x in v] if repeated else conv(v)
+    return out
+
+
+def _declared(value, schema, where="$"):
+    """Every key of ``value`` is a property of ``schema`` (the schemas allow extra keys)."""
+    if isinstance(value, dict):
+        props = schema.get("properties", {})
+        for k, v in value.items():
+            assert k in props, f"{where}.{k} is not in {schema.get('title')}"
+            _declared(v, props[k], f"{where}.{k}")
+    elif isinstance(value, list):
+        for i, v in enumerate(value):
+            _declared(v, schema.get("items", {}), f"{where}[{i}]")
+
+
+def _json_schema(name: str) -> dict:
+    return json.loads((JSON_SCHEMAS / f"{name.removeprefix('foxglove.')}.json").read_text())
+
+
 def _decode_viz(path):
-    """{topic: [decoded message as a dict]} for every protobuf channel of ``path``."""
+    """{topic: [decoded message as a dict]} for every protobuf channel of ``path``; each
+    message is also validated against Foxglove's JSON schema of its type."""
     classes, out = {}, collections.defaultdict(list)
+    validators = {}
     with open(path, "rb") as fh:
         for schema, channel, message in make_reader(fh).iter_messages(log_time_order=True):
             if channel.message_encoding != "protobuf":
@@ -36,6 +81,13 @@ def _decode_viz(path):
                 classes[schema.name] = message_factory.GetMessageClass(pool.FindMessageTypeByName(schema.name))
             msg = classes[schema.name].FromString(message.data)  # raises on bytes that do not fit the schema
             assert msg.SerializeToString() == message.data or msg.ByteSize() == len(message.data)
+            if schema.name not in validators:
+                js = _json_schema(schema.name)
+                validators[schema.name] = (jsonschema.Draft202012Validator(js), js)
+            validator, js = validators[schema.name]
+            as_json = _foxglove_json(msg)
+            validator.validate(as_json)
+            _declared(as_json, js)
             out[channel.topic].append(json_format.MessageToDict(msg, preserving_proto_field_name=True))
     return out
 
@@ -183,3 +235,31 @@ def test_log_tail_sends_complete_lines_once(tmp_path):
         fh.write(" line\n2026-01-02 03:04:06,000 r1 WARNING two\n")
     assert tail.poll() == 2 and tail.poll() == 0
     assert got[1][1] == got[0][1] and got[2][1] - got[0][1] == 322_000_000  # the unstamped line keeps the time
+
+
+def test_the_json_schemas_reject_what_foxglove_would_not_read():
+    from foxglove import messages as fm
+
+    from copath.wire.keys import Keys
+    from orchestrator.viz import VizBuilder
+
+    (_, msg), = VizBuilder(load_scenario(config("e5.5-")), Keys("x")).static()
+    schema = type(msg).get_schema()
+    pool = descriptor_pool.DescriptorPool()
+    for f in descriptor_pb2.FileDescriptorSet.FromString(schema.data).file:
+        pool.Add(f)
+    decoded = message_factory.GetMessageClass(pool.FindMessageTypeByName(schema.name)).FromString(msg.encode())
+    good = _foxglove_json(decoded)
+    js = _json_schema(schema.name)
+    jsonschema.Draft202012Validator(js).validate(good)
+    _declared(good, js)
+    bad = json.loads(json.dumps(good))
+    bad["entities"][0]["timestamp"]["nsec"] = 2_000_000_000
+    with pytest.raises(jsonschema.ValidationError):
+        jsonschema.Draft202012Validator(js).validate(bad)
+    del bad["entities"][0]["lifetime"]
+    with pytest.raises(jsonschema.ValidationError):
+        jsonschema.Draft202012Validator(js).validate(bad)
+    with pytest.raises(AssertionError, match="not in foxglove.SceneEntity"):
+        _declared({"deletions": [], "entities": [{"colour": 1}]}, js)
+    assert fm.SceneUpdate.get_schema().name == schema.name

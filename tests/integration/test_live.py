@@ -3,6 +3,7 @@ while a fleet runs (real processes over Zenoh) and while a recorded log replays.
 
 from __future__ import annotations
 
+import base64
 import json
 import struct
 import threading
@@ -70,8 +71,6 @@ def _watch(port: int, want: int, timeout_s: float) -> tuple[dict, dict]:
 
 def _decode(channel: dict, payload: bytes):
     pool = descriptor_pool.DescriptorPool()
-    import base64
-
     for f in descriptor_pb2.FileDescriptorSet.FromString(base64.b64decode(channel["schema"])).file:
         pool.Add(f)
     return message_factory.GetMessageClass(pool.FindMessageTypeByName(channel["schemaName"])).FromString(payload)

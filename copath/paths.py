@@ -301,21 +301,20 @@ class Path:
     def casadi(self, grid_step: float = 0.01):
         """CasADi functions ``x, y, theta, kappa`` of a (symbolic) arc length.
 
-        Built once per path (B-spline interpolants on a grid of ``grid_step``), and
-        evaluated at ``fmod(s, length)`` for closed paths so s may be a symbolic
-        state that grows without bound (docs/conventions.md, C2). ``theta`` is continuous
-        within one lap; wrap angle differences with atan2(sin, cos).
+        Built once per path: B-spline interpolants through the samples of the path's
+        :class:`PathTable` on a grid of ``grid_step`` (open paths include their straight
+        extensions of one path length at both ends), evaluated at ``fmod(s, length)`` for
+        closed paths so s may be a symbolic state that grows without bound
+        (docs/conventions.md, C2). ``theta`` is continuous within one lap; wrap angle
+        differences with atan2(sin, cos).
         """
         if self._cas is not None:
             return self._cas
         import casadi as ca
 
-        n = max(50, int(math.ceil(self.length / grid_step)) + 1)
-        if self.closed:
-            grid = np.linspace(0.0, self.length, n)
-        else:  # include straight extensions of one path length at both ends
-            grid = np.linspace(-self.length, 2 * self.length, 3 * n)
-        x, y, th, k = self.frame(grid)
+        table = self.table(min(grid_step, self.length / 49))
+        grid = table.grid
+        x, y, th, k = table.values[:4]
         fx = ca.interpolant(f"{self.name}_x", "bspline", [grid], x)
         fy = ca.interpolant(f"{self.name}_y", "bspline", [grid], y)
         fth = ca.interpolant(f"{self.name}_theta", "bspline", [grid], th)
@@ -369,6 +368,8 @@ class PathTable:
         dk = np.atleast_1d(path.dkappa(grid))
         self._lo, self._h, self._n = lo, (hi - lo) / (n - 1), n
         self._tab = np.stack([x, y, th, k, dk])
+        self.grid = grid
+        """(n,) arc lengths of the samples [m] (uniform)."""
         self._winding = 2 * math.pi * self.winding
 
     def __call__(self, s) -> np.ndarray:
@@ -385,6 +386,13 @@ class PathTable:
         if self.closed:
             out[2] += self._winding * laps
         return out
+
+    @property
+    def values(self) -> np.ndarray:
+        """(5, n) samples x, y, theta, kappa, dkappa at :attr:`grid` (read-only view)."""
+        v = self._tab.view()
+        v.flags.writeable = False
+        return v
 
     def pose(self, s: float) -> tuple[float, float, float, float]:
         """(x, y, theta, kappa) at one arc length."""

@@ -82,7 +82,8 @@ def test_live_views_of_a_running_fleet(tmp_path):
     outcome = {}
 
     def run():
-        outcome["o"] = run_fleet(s, RunOptions(out_dir=tmp_path, run_id="live-test", progress=False, live_port=port))
+        outcome["o"] = run_fleet(s, RunOptions(out_dir=tmp_path, run_id="live-test", progress=False, live_port=port,
+                                                    wall_timeout_s=90.0))
 
     th = threading.Thread(target=run, daemon=True)
     th.start()

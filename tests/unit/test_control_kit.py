@@ -6,8 +6,8 @@ import math
 import numpy as np
 import pytest
 
-from copath.control import LatestMessages, PathTable, PeerMessage
-from copath.models import OmniModel, rotation_speed_limit
+from copath.control import LatestMessages, Observation, PathTable, PeerMessage, RobotContext, VirtualVehicle
+from copath.models import OmniModel, UnicycleModel, rotation_speed_limit
 from copath.paths import circle, eight_curve, lemniscate, line, sinusoid
 
 
@@ -170,8 +170,6 @@ def test_one_solver_options_table():
 
 
 def test_virtual_vehicle_holds_its_speed_over_the_actual_step_times():
-    from copath.control import VirtualVehicle
-
     v = VirtualVehicle()
     assert not v.started
     with pytest.raises(ValueError, match="start"):
@@ -185,3 +183,47 @@ def test_virtual_vehicle_holds_its_speed_over_the_actual_step_times():
     assert v.advance(0.8) == pytest.approx(1.15 + 0.2 * 0.5)
     assert v.advance(0.8) == pytest.approx(1.15 + 0.2 * 0.5)  # advancing twice moves once
     assert VirtualVehicle(2).s == 2.0 and VirtualVehicle(2).started
+
+
+# -- the Chapter 6 controller in phases -------------------------------------------------
+
+
+def _state(obj) -> set[str]:
+    return set(vars(obj))
+
+
+def test_roles_phases_keep_their_state_in_init_and_three_robots_form_a_triangle():
+    """Three roles controllers exchanging their broadcasts (delivered one step later) agree
+    on the placement, take distinct positions and reach them; no phase object gains an
+    attribute after __init__ (the state of every phase is declared up front)."""
+    from agent.controllers.roles import RolesController
+
+    names = ("a", "b", "c")
+    tri = [[0.0, 0.6], [-0.5, -0.3], [0.5, -0.3]]
+    model = UnicycleModel(v_max=0.5, omega_max=1.0)
+    ctls = {n: RolesController(RobotContext(name=n, index=i, model=model, paths={}, path=None, neighbours=(),
+                                            robots=names, dt=0.1, params={"formations": [tri]}))
+            for i, n in enumerate(names)}
+    poses = {"a": np.array([-1.5, 0.2, 0.0]), "b": np.array([1.4, 1.0, 2.0]), "c": np.array([0.3, -1.6, 1.0])}
+    before = {n: _state(c) for n, c in ctls.items()}
+    pending: list = []
+    for k in range(600):
+        t = 0.1 * k
+        delivered, pending = pending, []
+        for n, c in ctls.items():
+            inbox = [m for m in delivered if m.sender != n]
+            res = c.step(Observation(t=t, pose=poses[n], dt=0.1), inbox)
+            pending += [PeerMessage(n, o.kind, t, 0.1, o.payload, position=tuple(poses[n][:2])) for o in res.messages]
+            poses[n] = model.step(poses[n], res.command, 0.1)
+        if k == 0:
+            phase_state = {n: {ph: _state(getattr(c, ph)) for ph in ("peers", "tasks", "agreement", "roles", "motion")}
+                           for n, c in ctls.items()}
+    for n, c in ctls.items():
+        assert _state(c) == before[n]
+        for ph, attrs in phase_state[n].items():
+            assert _state(getattr(c, ph)) == attrs, (n, ph)
+    claims = {n: c.roles.position for n, c in ctls.items()}
+    assert sorted(claims.values()) == [0, 1, 2]
+    for n, c in ctls.items():
+        assert c.tasks.done
+        assert np.hypot(*(c.roles.targets[claims[n]] - poses[n][:2])) < 2 * c.cfg.arrive_tol

@@ -158,6 +158,8 @@ def run_fleet(scenario: Scenario, opts: RunOptions) -> RunOutcome:
     common = ["--run-id", opts.run_id, "--config", str(scen_path.resolve())]  # children run in DIR/logs
     for e in connect_for_children:
         common += ["--connect", e]
+    if logging.getLogger().isEnabledFor(logging.DEBUG):  # copath --log-level debug reaches every process
+        common.append("--verbose")
     children: list[_Child] = []
     ok, reason = True, "completed"
     progress = Progress(scenario.run.duration_s, enabled=opts.progress,

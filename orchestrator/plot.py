@@ -57,6 +57,7 @@ from copath.wire.messages import Command, PeerEnvelope, Truth  # noqa: E402
 
 from .mcaplog import read_log  # noqa: E402
 from .metrics import Trace, trace_from_records  # noqa: E402
+from .viz import foxglove_layout  # noqa: E402
 from .metrics_estimation import estimate_series  # noqa: E402
 
 __all__ = ["RunView", "load_run", "FAMILIES", "applicable", "plot_run", "animate_run"]
@@ -532,8 +533,9 @@ def applicable(view: RunView) -> list[str]:
 
 def plot_run(mcap_path: str | pathlib.Path, out_dir: str | pathlib.Path | None = None, *, animate: bool = False,
              progress: bool = False, dpi: int = 110) -> list[pathlib.Path]:
-    """Write every applicable figure of a run (and its animation) as files in ``out_dir``
-    (default: the log's directory); returns their paths."""
+    """Write every applicable figure of a run, a Foxglove layout for its views
+    (``foxglove-layout.json``) and, asked, its animation as files in ``out_dir`` (default:
+    the log's directory); returns their paths."""
     view = load_run(mcap_path)
     out = pathlib.Path(out_dir) if out_dir is not None else pathlib.Path(mcap_path).parent
     out.mkdir(parents=True, exist_ok=True)
@@ -545,6 +547,9 @@ def plot_run(mcap_path: str | pathlib.Path, out_dir: str | pathlib.Path | None =
         fig.savefig(f, dpi=dpi)
         plt.close(fig)
         written.append(f)
+    layout = out / "foxglove-layout.json"  # Foxglove: Layouts -> Import from file
+    layout.write_text(foxglove_layout(view.scenario))
+    written.append(layout)
     if animate:
         written.append(animate_run(view, out, progress=progress))
     return written

@@ -49,7 +49,7 @@ from copath.scenario import Scenario
 from copath.wire.keys import Keys
 from copath.wire.messages import End, Event, Obs, PeerEnvelope, Telemetry, Truth
 
-__all__ = ["TOPICS", "VizBuilder", "McapVizSink", "log_line", "process_log_messages"]
+__all__ = ["TOPICS", "VizBuilder", "McapVizSink", "log_line", "process_log_messages", "foxglove_layout"]
 
 FRAME = "world"
 
@@ -349,6 +349,31 @@ def process_log_messages(log_dir: str | pathlib.Path, default_ns: int) -> Iterat
             if raw.strip():
                 last, msg = log_line(raw, f.stem, last)
                 yield last, msg
+
+
+def foxglove_layout(scenario: Scenario) -> str:
+    """A Foxglove layout (JSON, ``foxglove.layouts``) for the views: a top-down 3D panel in
+    the frame ``world`` centred on the scenario's paths with every scene view on, beside
+    Log panels for ``/viz/events`` and ``/viz/log``."""
+    import foxglove.layouts as fl  # noqa: PLC0415
+
+    pts = [path.pos(np.linspace(0.0, path.length, 100)) for path in scenario.paths.values()]
+    pts += [np.asarray([r.pose[:2] for r in scenario.robots], dtype=float)]
+    allp = np.concatenate(pts)
+    centre = (allp.min(axis=0) + allp.max(axis=0)) / 2
+    span = float(np.max(allp.max(axis=0) - allp.min(axis=0)))
+    scene = {t: fl.BaseRendererSceneUpdateTopicSettings(visible=True) for t, c in TOPICS.items() if c is fm.SceneUpdate}
+    topics: dict = {**scene, "/viz/robots": fl.BaseRendererPosesTopicSettings(visible=False)}
+    three_d = fl.ThreeDeePanel(title=f"{scenario.id}", config=fl.ThreeDeeConfig(
+        follow_tf=FRAME, fixed_frame=FRAME, follow_mode="follow-none", topics=topics,
+        camera_state=fl.ThreeDeeCameraState(perspective=False, distance=1.6 * span + 1.0, phi=0.0, theta_offset=0.0,
+                                             target=(float(centre[0]), float(centre[1]), 0.0))))
+    logs = fl.SplitContainer(direction="column", items=[
+        fl.SplitItem(proportion=1, content=fl.LogPanel(title="events", config=fl.LogConfig(topic_to_render="/viz/events"))),
+        fl.SplitItem(proportion=2, content=fl.LogPanel(title="process logs", config=fl.LogConfig(topic_to_render="/viz/log"))),
+    ])
+    return fl.Layout(content=fl.SplitContainer(direction="row", items=[
+        fl.SplitItem(proportion=3, content=three_d), fl.SplitItem(proportion=1, content=logs)])).to_json()
 
 
 class McapVizSink:

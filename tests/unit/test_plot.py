@@ -4,6 +4,8 @@ match the processes' closing accounts."""
 
 from __future__ import annotations
 
+import json
+
 import pytest
 
 from copath.scenario import load_scenario
@@ -52,6 +54,9 @@ def test_every_applicable_family_renders(tmp_path, recorded, prefix):
     _, network, must = CASES[prefix]
     s, log = recorded(prefix)
     files = plot_run(log, tmp_path / "plots", dpi=40)
+    layout = json.loads((tmp_path / "plots" / "foxglove-layout.json").read_text())
+    assert layout["content"]["items"][0]["content"]["panelType"] == "ThreeDee"
+    files = [f for f in files if f.suffix == ".png"]
     names = {f.stem for f in files}
     assert {"snapshots", "velocities"} | must <= names
     assert names <= set(FAMILIES)

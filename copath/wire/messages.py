@@ -12,6 +12,8 @@ other than float64; docs/measurements.md, M7).
 from __future__ import annotations
 
 import dataclasses
+import math
+import re
 from dataclasses import dataclass, field
 from typing import Any, ClassVar, Mapping
 
@@ -76,13 +78,46 @@ _CHECKS = {
 }
 
 
+_KIND_RE = re.compile(r"[a-z][a-z0-9_]{0,63}")
+"""A message kind: a lower-case name (the built-in kinds and a user controller's own)."""
+_MAX_DEPTH = 8
+
+
+def _check_plain(value: Any, where: str, depth: int = 0) -> None:
+    """Plain msgpack values only (maps with string keys, lists, str, bool, int, finite float)."""
+    if depth > _MAX_DEPTH:
+        raise WireError(f"{where}: nested deeper than {_MAX_DEPTH} levels")
+    if isinstance(value, float):
+        if not math.isfinite(value):
+            raise WireError(f"{where} = {value!r} is not a finite number")
+    elif isinstance(value, dict):
+        for k, v in value.items():
+            if not isinstance(k, str):
+                raise WireError(f"{where}: map key {k!r} is not a string")
+            _check_plain(v, f"{where}.{k}", depth + 1)
+    elif isinstance(value, list):
+        for i, v in enumerate(value):
+            _check_plain(v, f"{where}[{i}]", depth + 1)
+    elif not (value is None or isinstance(value, (str, bool, int))):
+        raise WireError(f"{where}: {type(value).__name__} is not a plain value")
+
+
 def validate_payload(kind: str, payload: Any) -> None:
-    """Check a robot-to-robot payload against ``copath.wire.payloads.PAYLOADS``."""
-    schema = PAYLOADS.get(kind)
-    if schema is None:
-        raise WireError(f"unknown message kind {kind!r}; known: {sorted(PAYLOADS)}")
+    """Check a robot-to-robot payload.
+
+    The built-in kinds have a schema in ``copath.wire.payloads.PAYLOADS``; any other kind
+    (a user controller's own, ``docs/controllers.md``) must be a lower-case name, and its
+    payload a map of plain values with finite numbers.
+    """
+    if not isinstance(kind, str) or not _KIND_RE.fullmatch(kind):
+        raise WireError(f"message kind {kind!r} is not allowed; a kind is a lower-case name "
+                        "(letters, digits, underscore; at most 64 characters)")
     if not isinstance(payload, dict):
         raise WireError(f"{kind}: payload must be a map, got {type(payload).__name__}")
+    schema = PAYLOADS.get(kind)
+    if schema is None:
+        _check_plain(payload, kind)
+        return
     for name, typ in schema.items():
         optional = name.endswith("?")
         key = name[:-1] if optional else name

@@ -73,6 +73,18 @@ def test_invalid_records_are_rejected_with_a_reason():
         unpack(b"\xc1garbage")
 
 
+def test_user_message_kinds_pass_with_plain_finite_payloads():
+    validate_payload("progress", {"xi": 1.0, "v": 0.2, "tags": ["a"], "nested": {"k": [1, 2.5]}})
+    with pytest.raises(WireError, match="kind 'Bad Kind' is not allowed"):
+        validate_payload("Bad Kind", {"x": 1.0})
+    with pytest.raises(WireError, match=r"progress\.xi = nan is not a finite number"):
+        validate_payload("progress", {"xi": float("nan")})
+    with pytest.raises(WireError, match=r"progress\.p\[1\] = inf is not a finite number"):
+        validate_payload("progress", {"p": [0.0, float("inf")]})
+    with pytest.raises(WireError, match="payload must be a map"):
+        validate_payload("progress", [1.0])
+
+
 @given(st.integers(0, 2**32 - 1), st.floats(0, 1), st.floats(0, 200), st.floats(0, 50))
 def test_fault_decisions_are_a_function_of_seed_and_link(seed, loss, delay, jitter):
     net = NetworkConfig(delay_ms=delay, jitter_ms=jitter, loss=loss, burst_p_gb=0.1, burst_p_bg=0.3)

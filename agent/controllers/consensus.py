@@ -16,14 +16,23 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Sequence
+from typing import Any, Callable, Iterable, Mapping, Sequence
 
 import numpy as np
 
 from copath.config import require
 from copath.paths import wrap_to_pi
 
-from copath.control import controller, LatestMessages, Observation, Outgoing, PeerMessage, RobotContext, StepResult
+from copath.control import (
+    LatestMessages,
+    Observation,
+    Outgoing,
+    PeerMessage,
+    Received,
+    RobotContext,
+    StepResult,
+    controller,
+)
 
 __all__ = [
     "ConsensusGains",
@@ -33,6 +42,7 @@ __all__ = [
     "tracking_errors",
     "tracking_law",
     "consensus_acceleration",
+    "neighbour_states",
     "MESSAGE_KIND",
     "build",
 ]
@@ -104,6 +114,36 @@ class NeighbourState:
     """s_j - s_dj, extrapolated to now [m]."""
     sdot: float
     """sdot_j [m/s]."""
+
+
+def _coordination(payload: Mapping[str, Any]) -> tuple[float, float, float]:
+    """(s_j, sdot_j, s_dj) of a ``coord_state`` payload."""
+    return float(payload["s"]), float(payload["sdot"]), float(payload["s_d"])
+
+
+def neighbour_states(
+    received: Iterable[Received],
+    t: float,
+    xi: float,
+    coordinate: Callable[[Mapping[str, Any]], tuple[float, float, float]],
+    extrapolate: bool = True,
+    period: float = 0.0,
+) -> list[NeighbourState]:
+    """The neighbours' coordination states of (5.42) at time t from their newest messages.
+
+    ``coordinate(payload)`` gives (c_j, cdot_j, offset_j) with xi_j = c_j - offset_j; c_j
+    is extrapolated by cdot_j times the message age (docs/controllers-notes.md, N3). On a
+    shared closed path of length ``period`` a lap apart is the same place: xi_j is moved
+    by whole periods next to this robot's own ``xi``.
+    """
+    out = []
+    for got in received:
+        c, cdot, offset = coordinate(got.payload)
+        xi_j = (c + cdot * got.since_stamp(t) if extrapolate else c) - offset
+        if period:
+            xi_j += period * round((xi - xi_j) / period)
+        out.append(NeighbourState(xi=xi_j, sdot=cdot))
+    return out
 
 
 def tracking_errors(pose, ref_pose) -> tuple[float, float, float]:
@@ -198,17 +238,9 @@ class ConsensusController:
         self.inbox = LatestMessages(kinds=(MESSAGE_KIND,))
 
     def _neighbour_states(self, t: float, xi: float) -> list[NeighbourState]:
-        out = []
-        period = self.path.length if self.path.closed else 0.0
-        for got in self.inbox.fresh(MESSAGE_KIND, t, self.cfg.stale_after_s).values():
-            p = got.payload
-            s_d, s, sdot = float(p["s_d"]), float(p["s"]), float(p["sdot"])
-            age = got.since_stamp(t)
-            xi_j = (s + sdot * age if self.cfg.extrapolate else s) - s_d
-            if period:  # on a shared closed path, a lap apart is the same place
-                xi_j += period * round((xi - xi_j) / period)
-            out.append(NeighbourState(xi=xi_j, sdot=sdot))
-        return out
+        return neighbour_states(self.inbox.fresh(MESSAGE_KIND, t, self.cfg.stale_after_s).values(), t, xi,
+                                _coordination, self.cfg.extrapolate,
+                                self.path.length if self.path.closed else 0.0)
 
     def step(self, obs: Observation, inbox: Sequence[PeerMessage]) -> StepResult:
         cfg = self.cfg

@@ -37,6 +37,7 @@ from .consensus import (
     ConsensusConfig,
     ConsensusGains,
     NeighbourState,
+    neighbour_states,
     consensus_acceleration,
     tracking_errors,
     tracking_law,
@@ -97,6 +98,11 @@ class FormationSwitchingConfig(ConsensusGains):
         return ConsensusConfig(**self.gains())
 
 
+def _formation_coordinate(payload) -> tuple[float, float, float]:
+    """(xi_j, xi-dot_j, 0) of a ``formation_state`` payload."""
+    return float(payload["xi"]), float(payload["xidot"]), 0.0
+
+
 class FormationSwitchingController:
     """One robot of E6.6: Sec. 5.5 coordinated path following on switching offset slots."""
 
@@ -143,11 +149,8 @@ class FormationSwitchingController:
 
     # -- step -----------------------------------------------------------------------------
     def _neighbours(self, t: float, xi: float) -> list[NeighbourState]:
-        out = []
-        for got in self.inbox.fresh(MESSAGE_KIND, t, self.cfg.stale_after_s).values():
-            x, xd = float(got.payload["xi"]), float(got.payload["xidot"])
-            out.append(NeighbourState(xi=x + xd * got.since_stamp(t), sdot=xd))
-        return out
+        return neighbour_states(self.inbox.fresh(MESSAGE_KIND, t, self.cfg.stale_after_s).values(), t, xi,
+                                _formation_coordinate)
 
     def _shape(self, p: np.ndarray, ref: np.ndarray, t: float) -> np.ndarray:
         """Reference position pushed away from the other robots, (6.12)-(6.15), plus the

@@ -21,6 +21,7 @@ import logging
 import os
 import pathlib
 import signal
+import threading
 import subprocess
 import sys
 import time
@@ -115,6 +116,14 @@ def _stop(children: list[_Child], grace_s: float = 3.0) -> None:
         c.log.close()
 
 
+class _Terminated(Exception):
+    """SIGTERM arrived while a run was under way."""
+
+
+def _raise_terminated(signum, frame) -> None:
+    raise _Terminated()
+
+
 def _describe_exit(rc: int) -> str:
     if rc < 0:
         try:
@@ -165,6 +174,9 @@ def run_fleet(scenario: Scenario, opts: RunOptions) -> RunOutcome:
     progress = Progress(scenario.run.duration_s, enabled=opts.progress,
                         starting=f"starting {len(scenario.robots) + 1} processes (solvers compile)").start()
     wall_limit = opts.wall_timeout_s or (120.0 + 20.0 * scenario.run.duration_s)
+    # SIGTERM (a test's timeout, a process manager) ends the run like Ctrl-C: children stopped, log finished
+    prev_term = (signal.signal(signal.SIGTERM, _raise_terminated)
+                 if threading.current_thread() is threading.main_thread() else None)
     try:
         children.append(_spawn("sim", [sys.executable, "-m", "sim", *common, "--start-timeout",
                                        str(opts.start_timeout_s)], out / "logs" / "sim.log", out / "logs"))
@@ -204,7 +216,11 @@ def run_fleet(scenario: Scenario, opts: RunOptions) -> RunOutcome:
             time.sleep(0.05)
     except KeyboardInterrupt:
         ok, reason = False, f"interrupted (Ctrl-C) at sim t={recorder.sim_t:.2f} s"
+    except _Terminated:
+        ok, reason = False, f"terminated (SIGTERM) at sim t={recorder.sim_t:.2f} s"
     finally:
+        if prev_term is not None:
+            signal.signal(signal.SIGTERM, prev_term)
         progress.done()
         if ok:  # closing accounts may still be in flight through the router
             expected = {"sim", *scenario.robot_names}

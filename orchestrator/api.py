@@ -164,15 +164,18 @@ def apply_overrides(raw: Mapping[str, Any], overrides: Mapping[str, Any]) -> dic
         for i, s in enumerate(segs[:-1]):
             where = ".".join(str(x) for x in segs[: i + 1])
             if isinstance(node, list):
+                parent = ".".join(str(x) for x in segs[:i]) or "(top)"
+                names = [e.get("name") for e in node if isinstance(e, dict) and "name" in e]
+                allowed = (f"expected an entry's name ({', '.join(map(str, names))}) or an index below {len(node)}"
+                           if names else f"expected an index below {len(node)}")
                 if isinstance(s, str):  # robots.r1 -> the entry whose name is r1
                     named = [e for e in node if isinstance(e, dict) and e.get("name") == s]
                     if not named:
-                        names = [e.get("name") for e in node if isinstance(e, dict)]
-                        raise ConfigError(f"{where} = {s!r} is not allowed; names here: {names}")
+                        raise ConfigError(f"{key} = {value!r} is not allowed; {parent} has no entry {s!r}: {allowed}")
                     node = named[0]
                     continue
                 if not -len(node) <= s < len(node):
-                    raise ConfigError(f"{where} = {s} is not allowed; index out of range (length {len(node)})")
+                    raise ConfigError(f"{key} = {value!r} is not allowed; {parent} has no entry [{s}]: {allowed}")
                 node = node[s]
             elif isinstance(node, dict):
                 if isinstance(s, int):

@@ -54,12 +54,6 @@ def _overrides(args: argparse.Namespace) -> dict:
     return out
 
 
-def _load(config: str, overrides: dict) -> Scenario:
-    """The scenario meant by CONFIG (file, bundled stem or experiment id), overrides applied,
-    fully validated."""
-    return api.load(config, overrides)
-
-
 def _fmt(v, digits=3) -> str:
     if v is None:
         return "-"
@@ -178,7 +172,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
     from .progress import Progress
 
     try:
-        scenario = _load(args.config, _overrides(args))
+        scenario = api.load(args.config, _overrides(args))  # file, bundled stem or experiment id
         run_id = args.run_id or new_run_id(scenario.id)
         valid_run_id(run_id)
         if args.inprocess and scenario.run.clock != "lockstep":
@@ -199,6 +193,9 @@ def _cmd_run(args: argparse.Namespace) -> int:
                             starting="building controllers (solvers compile)").start()
         try:
             run = api.run(scenario, inprocess=True, out_dir=out, run_id=run_id, on_tick=progress.update)
+        except KeyboardInterrupt:
+            print("copath run: interrupted (Ctrl-C)", file=sys.stderr)
+            return 130
         finally:
             progress.done()
         rc = _finish(args, scenario, run.metrics)

@@ -69,7 +69,7 @@ def test_set_values_are_toml_literals_applied_anywhere():
     ("network.loss=1.5", "network.loss = 1.5 is not allowed; must be a probability"),
     ("network.los=0.1", "network.los = 0.1 is not allowed; allowed keys"),
     ("controller.k_one=1", "controller.k_one = 1 is not allowed"),
-    ("robots.r9.pose=[0,0,0]", "'r9' is not allowed"),
+    ("robots.r9.pose=[0,0,0]", "robots.r9.pose = [0, 0, 0] is not allowed; robots has no entry 'r9'"),
     ("run.duration_s", "expected key.path=value"),
 ])
 def test_a_bad_set_names_key_value_and_rule(item, needle, capsys, tmp_path):

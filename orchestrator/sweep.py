@@ -215,21 +215,32 @@ def _num(v: float | None) -> str:
         return "-"
     if float(v).is_integer() and abs(v) < 1e6:
         return str(int(v))
-    return f"{v:.4g}"
+    return f"{v:.3g}"
+
+
+_SHORT = {"path_error_max_m": "path m", "heading_error_max_rad": "heading rad",
+          "coordination_error_max_m": "coord m", "formation_error_max_m": "formation m",
+          "min_separation_m": "min sep m", "collisions": "collisions", "min_obstacle_clearance_m": "clearance m",
+          "tasks_completed": "tasks", "solve_ms_p99": "solve p99 ms", "missed_ticks": "missed",
+          "messages_dropped_by_faults": "dropped"}
 
 
 def format_summary(rows: list[SweepRow]) -> str:
+    """One line per setting: runs, failures, targets met, and mean/worst of each headline
+    figure over the seeds (the worst robot's figure for per-robot metrics)."""
     skeys, fkeys, groups = summarise(rows)
-    head = [*skeys, "runs", "failed", "targets", *(f"{k} mean/worst" for k in fkeys)]
-    table = [head]
+    head = [*skeys, "runs", "failed", "targets", *(_SHORT.get(k, k) for k in fkeys)]
+    sub = [""] * (len(skeys) + 3) + ["mean/worst"] * len(fkeys)
+    table = [head, sub]
     for g in groups:
         tgt = f"{g['targets_met']}/{g['targets_total']}" if g["targets_total"] else "-"
         table.append([*(g["setting"][k] for k in skeys), str(g["runs"]), str(g["failed"]), tgt,
-                      *(f"{_num(g['mean'][k])} / {_num(g['worst'][k])}" for k in fkeys)])
+                      *(f"{_num(g['mean'][k])}/{_num(g['worst'][k])}" for k in fkeys)])
     widths = [max(len(str(row[i])) for row in table) for i in range(len(head))]
-    lines = ["  ".join(str(c).rjust(w) for c, w in zip(row, widths)) for row in table]
-    lines.insert(1, "-" * len(lines[0]))
-    return "\n".join(lines)
+    lines = ["  ".join(str(c).rjust(w) for c, w in zip(row, widths)).rstrip() for row in table]
+    lines.insert(2, "-" * max(len(line) for line in lines))
+    legend = ", ".join(f"{_SHORT[k]} = {k}" for k in fkeys if k in _SHORT)
+    return "\n".join([*lines, f"({legend})"])
 
 
 def plot_sweep(rows: list[SweepRow], out_dir: str | pathlib.Path) -> list[pathlib.Path]:

@@ -57,7 +57,7 @@ from copath.wire.messages import Command, PeerEnvelope, Truth  # noqa: E402
 
 from .mcaplog import read_log  # noqa: E402
 from .metrics import Trace, trace_from_records  # noqa: E402
-from .viz import foxglove_layout  # noqa: E402
+from .viz import FaultReplay, foxglove_layout  # noqa: E402
 from .metrics_estimation import estimate_series  # noqa: E402
 
 __all__ = ["RunView", "load_run", "FAMILIES", "applicable", "plot_run", "animate_run"]
@@ -168,29 +168,16 @@ def _truth_series(view: RunView):
 
 
 def drops(view: RunView) -> DropSeries | None:
-    """Reconstruct the fault layer's drop decisions from the recorded peer messages."""
-    from copath.wire.faults import LinkFaults  # noqa: PLC0415
-
-    net = view.scenario.network
-    if not (net.loss > 0 or net.burst_p_gb > 0 or net.partitions):
+    """The fault layer's drop decisions, replayed over the recorded peer messages."""
+    replay = FaultReplay(view.scenario)
+    if not replay.active:
         return None
-    by_sender: dict[str, list[tuple[str, PeerEnvelope]]] = {}
-    for rel, env in view.peers:
-        by_sender.setdefault(env.sender, []).append((rel, env))
     t_drop, part = [], []
-    for r in view.scenario.robots:
-        faults = LinkFaults(net, view.scenario.run.seed, r.name)
-        hears = None if net.range_m > 0 else set(r.neighbours)
-        for sender, msgs in by_sender.items():
-            if sender == r.name or (hears is not None and sender not in hears):
-                continue
-            for rel, env in sorted(msgs, key=lambda m: m[1].seq):
-                if not (rel.endswith("/all") or rel.endswith(f"/to/{r.name}")):
-                    continue
-                before = faults.partitioned
-                if faults.release_time(sender, env.stamp) is None:
-                    t_drop.append(env.stamp)
-                    part.append(faults.partitioned > before)
+    for rel, env in sorted(view.peers, key=lambda p: (p[1].sender, p[1].seq)):  # each sender's order
+        for _receiver, outcome in replay.decide(rel, env):
+            if outcome is not None:
+                t_drop.append(env.stamp)
+                part.append(outcome == "partition")
     order = np.argsort(t_drop, kind="stable")
     stats = view.trace.stats
     accounted = None

@@ -19,8 +19,9 @@ topic                Foxglove type           content
                                              Ch. 6 target positions) with the task each
                                              robot is assigned
 ``/viz/ranges``      ``foxglove.SceneUpdate``  range-sensor rays (Sec. 4.5)
-``/viz/links``       ``foxglove.SceneUpdate``  communication links up (green) and cut by a
-                                             partition (red), Def. 10
+``/viz/links``       ``foxglove.SceneUpdate``  communication links up (green), whose latest
+                                             message was lost (orange), cut by a partition
+                                             (red), Def. 10
 ``/viz/events``      ``foxglove.Log``          fault windows opening and closing, process
                                              events, the end of the run
 ``/viz/log``         ``foxglove.Log``          every process's log lines
@@ -46,10 +47,11 @@ import numpy as np
 from foxglove import messages as fm
 
 from copath.scenario import Scenario
+from copath.wire.faults import LinkFaults
 from copath.wire.keys import Keys
 from copath.wire.messages import End, Event, Obs, PeerEnvelope, Telemetry, Truth
 
-__all__ = ["TOPICS", "VizBuilder", "McapVizSink", "log_line", "process_log_messages", "foxglove_layout"]
+__all__ = ["TOPICS", "VizBuilder", "FaultReplay", "McapVizSink", "log_line", "process_log_messages", "foxglove_layout"]
 
 FRAME = "world"
 
@@ -117,6 +119,39 @@ def _log(t: float, level: fm.LogLevel, name: str, message: str) -> fm.Log:
     return fm.Log(timestamp=_time(t), level=level, message=message, name=name)
 
 
+class FaultReplay:
+    """The fault layer's decisions, recovered from the published peer messages.
+
+    The fault layer (``copath.wire.faults``) draws from one seeded stream per directed link,
+    once per message in the sender's order, so replaying it on the messages of the log
+    gives every receiver's decision without the receivers' help (docs/viewing.md, V1).
+    """
+
+    def __init__(self, scenario: Scenario) -> None:
+        net = scenario.network
+        self.active = net.loss > 0 or net.burst_p_gb > 0 or bool(net.partitions)
+        self._faults = {r.name: LinkFaults(net, scenario.run.seed, r.name) for r in scenario.robots} \
+            if self.active else {}
+        self._hears = {r.name: None if net.range_m > 0 else set(r.neighbours) for r in scenario.robots}
+
+    def decide(self, rel: str, env: PeerEnvelope) -> list[tuple[str, str | None]]:
+        """(receiver, None | "loss" | "partition") for every robot that receives ``env``
+        (published on the run-relative key ``rel``); call in each sender's order."""
+        out = []
+        for r, faults in self._faults.items():
+            hears = self._hears[r]
+            if r == env.sender or (hears is not None and env.sender not in hears):
+                continue
+            if not (rel.endswith("/all") or rel.endswith(f"/to/{r}")):
+                continue
+            before = faults.partitioned
+            if faults.release_time(env.sender, env.stamp) is None:
+                out.append((r, "partition" if faults.partitioned > before else "loss"))
+            else:
+                out.append((r, None))
+        return out
+
+
 class VizBuilder:
     """The Foxglove views of one run, fed record by record.
 
@@ -138,6 +173,8 @@ class VizBuilder:
         self.plans: dict[str, np.ndarray] = {}
         self.ranges: dict[str, list[float]] = {}
         self._active_partitions: set[int] = set()
+        self.faults = FaultReplay(scenario)
+        self._lost: dict[frozenset, float] = {}  # link -> stamp of its last message lost to faults
         self._angles = None
         if scenario.sensors.enabled:
             from agent.runtime import sensor_angles  # noqa: PLC0415  (the one definition of the ring)
@@ -159,6 +196,9 @@ class VizBuilder:
         if isinstance(rec, Telemetry):
             self.telemetry[self.keys.relative(key).split("/")[1]] = rec.data
         elif isinstance(rec, PeerEnvelope):
+            for receiver, outcome in self.faults.decide(self.keys.relative(key), rec):
+                if outcome == "loss":
+                    self._lost[frozenset((rec.sender, receiver))] = rec.stamp
             plan = self._plan(rec)
             if plan is not None:
                 self.plans[rec.sender] = plan
@@ -296,8 +336,14 @@ class VizBuilder:
 
     def _links(self, t: float, poses: dict) -> fm.SceneUpdate:
         up, down = self.communication_graph(t, poses)
+        # a link whose latest message (either way) was lost to loss or bursts shows orange
+        recent = t - 1.5 * self.dt
+        lost = [e for e in up if self._lost.get(frozenset(e), -math.inf) >= recent]
+        up = [e for e in up if e not in lost]
         seg = lambda links: [(poses[a][:2], poses[b][:2]) for a, b in links if a in poses and b in poses]  # noqa: E731
         lines = [_segments(seg(up), fm.Color(r=0.1, g=0.7, b=0.2, a=0.8), 1.5)]
+        if lost:
+            lines.append(_segments(seg(lost), fm.Color(r=1.0, g=0.55, b=0.0, a=0.9), 2.0))
         if down:
             lines.append(_segments(seg(down), fm.Color(r=0.9, g=0.1, b=0.1, a=0.9), 3.0))
         return fm.SceneUpdate(entities=[_entity(t, "links", lines=lines)])

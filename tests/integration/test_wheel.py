@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import os
 import pathlib
+import shutil
 import signal
 import subprocess
 import sys
@@ -46,8 +47,12 @@ def _run(argv: list[str], cwd: pathlib.Path, timeout: float, env: dict | None = 
 
 @pytest.fixture(scope="module")
 def wheel(tmp_path_factory) -> pathlib.Path:
+    # build from a clean copy: a build/ left in the checkout could carry stale modules into the wheel
+    src = tmp_path_factory.mktemp("src") / "copath"
+    shutil.copytree(REPO, src, ignore=shutil.ignore_patterns(".git", "build", "*.egg-info", "runs", "__pycache__",
+                                                             ".pytest_cache", ".hypothesis", "*.mcap"))
     out = tmp_path_factory.mktemp("wheel")
-    res = _run([sys.executable, "-m", "pip", "wheel", "--no-deps", "-q", "-w", str(out), str(REPO)], out, 600)
+    res = _run([sys.executable, "-m", "pip", "wheel", "--no-deps", "-q", "-w", str(out), str(src)], out, 600)
     if res.returncode != 0:
         if any(h in res.stderr for h in NETWORK_HINTS):
             pytest.skip(f"cannot fetch the build backend: {res.stderr.strip().splitlines()[-1]}")

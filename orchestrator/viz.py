@@ -18,7 +18,7 @@ topic                Foxglove type           content
 ``/viz/formation``   ``foxglove.SceneUpdate``  formation targets (followers' references,
                                              Ch. 6 target positions) with the task each
                                              robot is assigned
-``/viz/ranges``      ``foxglove.SceneUpdate``  range-sensor rays (Sec. 4.5)
+``/viz/ranges``      ``foxglove.SceneUpdate``  range-sensor rays (Sec. 4.4.2)
 ``/viz/links``       ``foxglove.SceneUpdate``  communication links up (green), whose latest
                                              message was lost (orange), cut by a partition
                                              (red), Def. 10

@@ -9,7 +9,7 @@ file                content                                                     
 ``snapshots.png``   robots on their paths at chosen instants: footprints,         always
                     headings, formation links (as Figs 5.10, 5.21, 6.2)
 ``tracking.png``    path and heading error of each robot over time                a ``ref``
-``speeds.png``      virtual-vehicle speeds sdot (Ch. 4, Sec. 4.2; (5.42))                an ``sdot``
+``speeds.png``      virtual-vehicle speeds sdot (Sec. 4.2, (5.42))                an ``sdot``
 ``velocities.png``  applied velocities, and wheel rim speeds of omni robots,      always
                     against the model's limits ((3.2), (4.17)-(4.18))
 ``coordination.png`` coordination and formation errors from the truth             a team

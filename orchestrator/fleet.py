@@ -152,9 +152,8 @@ def run_fleet(scenario: Scenario, opts: RunOptions) -> RunOutcome:
                    "seed": str(scenario.run.seed), "robots": ",".join(scenario.robot_names),
                    "python": sys.version.split()[0]},
     }
-    router = ZenohLink.open(SessionConfig(mode="router", listen=tuple(listen), connect=tuple(opts.connect)))
     live = tail = None
-    if opts.live_port is not None:
+    if opts.live_port is not None:  # before anything else opens: a busy port fails the run at once
         from .live import LiveViz, LogTail
         from .viz import TOPICS
 
@@ -162,6 +161,7 @@ def run_fleet(scenario: Scenario, opts: RunOptions) -> RunOutcome:
         live.advertise(TOPICS)
         tail = LogTail(out / "logs", live).start()  # process log lines, live
         logger.info("live views on %s (Foxglove: Open connection -> Foxglove WebSocket)", live.url)
+    router = ZenohLink.open(SessionConfig(mode="router", listen=tuple(listen), connect=tuple(opts.connect)))
     recorder = Recorder(out / "run.mcap", keys, metadata, scenario, live=live)
     router.subscribe_raw(keys.all, recorder.write)
     common = ["--run-id", opts.run_id, "--config", str(scen_path.resolve())]  # children run in DIR/logs
@@ -173,6 +173,16 @@ def run_fleet(scenario: Scenario, opts: RunOptions) -> RunOutcome:
     ok, reason = True, "completed"
     progress = Progress(scenario.run.duration_s, enabled=opts.progress,
                         starting=f"starting {len(scenario.robots) + 1} processes (solvers compile)").start()
+    ready: set[str] = set()  # robots whose controller is built: their liveliness token is up
+
+    def _on_alive(key: str, alive: bool) -> None:
+        name = key.rsplit("/", 1)[-1]
+        if name in scenario.robot_names:
+            (ready.add if alive else ready.discard)(name)
+            progress.starting = (f"starting: {len(ready)}/{len(scenario.robots)} robots ready "
+                                 "(the others build their controllers; solvers compile)")
+
+    router.watch_liveliness(keys.all_alive, _on_alive)
     wall_limit = opts.wall_timeout_s or (120.0 + 20.0 * scenario.run.duration_s)
     # SIGTERM (a test's timeout, a process manager) ends the run like Ctrl-C: children stopped, log finished
     prev_term = (signal.signal(signal.SIGTERM, _raise_terminated)

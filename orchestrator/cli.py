@@ -203,9 +203,15 @@ def _cmd_run(args: argparse.Namespace) -> int:
         if not args.no_plots:
             _plots(out / "run.mcap", out)
         return rc
-    outcome = run_fleet(scenario, RunOptions(out_dir=out, run_id=run_id, progress=not args.quiet,
-                                             wall_timeout_s=args.wall_timeout, connect=tuple(args.connect),
-                                             listen=tuple(args.listen), live_port=args.live))
+    try:
+        outcome = run_fleet(scenario, RunOptions(out_dir=out, run_id=run_id, progress=not args.quiet,
+                                                 wall_timeout_s=args.wall_timeout, connect=tuple(args.connect),
+                                                 listen=tuple(args.listen), live_port=args.live))
+    except ValueError as exc:  # LivePortError: nothing was started
+        if type(exc).__name__ != "LivePortError":
+            raise
+        print(f"copath run: {exc}", file=sys.stderr)
+        return EXIT_INPUT
     rc = _finish(args, scenario, outcome.metrics)
     print(f"log: {out / 'run.mcap'}\nmetrics: {out / 'metrics.json'}")
     if not args.no_plots and (out / "run.mcap").is_file():

@@ -24,10 +24,14 @@ from copath.wire.messages import WireError, unpack
 from .mcaplog import iter_raw, read_log
 from .viz import VizBuilder, log_line
 
-__all__ = ["LiveViz", "LogTail", "DEFAULT_PORT", "serve_log"]
+__all__ = ["LiveViz", "LivePortError", "LogTail", "DEFAULT_PORT", "serve_log"]
 
 DEFAULT_PORT = 8765
 """Foxglove's default WebSocket port."""
+
+
+class LivePortError(ValueError):
+    """The live server cannot listen on the port asked for."""
 
 
 class LiveViz:
@@ -35,7 +39,11 @@ class LiveViz:
 
     def __init__(self, port: int = DEFAULT_PORT, host: str = "127.0.0.1", name: str = "copath") -> None:
         self.context = foxglove.Context()
-        self.server = foxglove.start_server(name=name, host=host, port=port, context=self.context)
+        try:
+            self.server = foxglove.start_server(name=name, host=host, port=port, context=self.context)
+        except RuntimeError as exc:  # foxglove-sdk reports a bind failure as a RuntimeError
+            raise LivePortError(f"--live = {port} is not allowed; the port cannot be opened ({exc}); "
+                                "choose a free one with --live PORT") from None
         self._channels: dict[str, object] = {}
         self._lock = threading.Lock()
         self.count = 0

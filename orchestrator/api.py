@@ -39,6 +39,7 @@ __all__ = [
     "bundled_scenarios",
     "find_scenario",
     "parse_value",
+    "parse_values",
     "parse_set",
     "apply_overrides",
     "load",
@@ -360,11 +361,9 @@ def run(scenario: Scenario | str | pathlib.Path, overrides: Mapping[str, Any] | 
 
 def open_run(path: str | pathlib.Path) -> Run:
     """A recorded run read back: a run directory or its ``run.mcap``. Metrics come from
-    ``metrics.json`` next to the log, or are computed from the log."""
-    from copath.wire.keys import Keys
-
+    ``metrics.json`` next to the log, or are recomputed from the log (``copath metrics``)."""
     from .mcaplog import read_log
-    from .metrics import compute_metrics, trace_from_records
+    from .metrics import metrics_from_log
 
     p = pathlib.Path(path)
     mcap = p / "run.mcap" if p.is_dir() else p
@@ -373,13 +372,7 @@ def open_run(path: str | pathlib.Path) -> Run:
     log = read_log(mcap)
     sc = parse_scenario(log.scenario_raw, base_dir=None, source=log.scenario_raw.get("_source", ""))
     mfile = mcap.parent / "metrics.json"
-    if mfile.is_file():
-        metrics = json.loads(mfile.read_text())
-    else:
-        keys = Keys(log.run_id)
-        metrics = compute_metrics(trace_from_records(log.records, keys), sc, run_id=log.run_id,
-                                  clock=log.metadata.get("copath", {}).get("clock", sc.run.clock), wall_time_s=None,
-                                  messages_published=None, messages_recorded=len(log.records) + log.rejected)
+    metrics = json.loads(mfile.read_text()) if mfile.is_file() else metrics_from_log(mcap)
     outcome = log.metadata.get("outcome", {})
     return Run(sc, metrics, log.records, mcap.parent, outcome.get("ok", "True") == "True",
                outcome.get("reason", "completed"))

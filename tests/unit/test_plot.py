@@ -88,3 +88,14 @@ def test_animation_is_written_with_a_progress_bar(tmp_path, recorded, capsys):
     assert f.exists() and f.stat().st_size > 1000 and f.suffix in (".gif", ".mp4")
     assert "6/6 frames" in capsys.readouterr().err
     assert "snapshots" in applicable(view)
+
+
+def test_copath_plot_command(tmp_path, recorded, capsys):
+    from orchestrator.cli import main
+
+    _, log = recorded("e5.4-")
+    assert main(["plot", str(log), "--out", str(tmp_path / "figs")]) == 0
+    printed = capsys.readouterr().out.split()
+    assert str(tmp_path / "figs" / "snapshots.png") in printed and (tmp_path / "figs" / "coordination.png").exists()
+    assert main(["plot", str(tmp_path / "missing.mcap")]) == 2
+    assert "missing.mcap" in capsys.readouterr().err

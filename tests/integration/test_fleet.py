@@ -66,7 +66,7 @@ def test_info_lists_channels_counts_robots_and_scenario(e55_run, capsys):
     text = capsys.readouterr().out
     assert "e55-test" in text and "r1, r2, r3" in text and "sim/truth" in text and "600 msgs" in text
     info = log_info(out / "run.mcap")
-    assert info["scenario"]["id"] == "e5.5" and info["outcome"]["ok"] == "True"
+    assert info["scenario"]["id"] == "e5.5-column-lemniscate" and info["outcome"]["ok"] == "True"
     assert info["messages"] == 7806  # 7802 + one closing account per process
 
 

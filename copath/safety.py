@@ -28,9 +28,10 @@ the QP
           model limits (omni wheel speeds (3.2); unicycle |v| <= v_max, |omega| <= omega_max),
           optional speed cap |qdot| <= speed_max_mps,
 
-solved by CasADi's ``conic`` interface with DAQP. The slack ``sigma`` (exact penalty)
-keeps the QP feasible when a start pose or a stale neighbour already violates a barrier;
-stopping (u = 0) satisfies every barrier with h >= 0. A nominal command that already
+solved by CasADi's ``conic`` interface with DAQP. A barrier already crossed (h < 0: an
+overlapping start, or a stale neighbour's grown disc) only forbids closing in further
+(h is clamped at 0), so stopping (u = 0) always satisfies every barrier; the slack ``sigma``
+(exact penalty) is a guard that keeps the QP solvable whatever the numbers. A nominal command that already
 satisfies every barrier (after the model's own saturation) is returned unchanged: the
 filter is inactive, and bit for bit invisible, away from other robots.
 
@@ -67,6 +68,11 @@ class SafetyConfig:
     speed_max_mps: float | None = None
     """Speed bound of every filtered robot [m/s]: each filter caps its own robot's speed at it and
     assumes it of its neighbours. None: no cap, neighbours bounded by their model's limit."""
+    accel_max_mps2: float | None = None
+    """Assumed bound on every robot's acceleration [m/s^2] (not enforced). With it, a neighbour's
+    position is extrapolated with the velocity of its last two messages and inflated by
+    accel_max_mps2 * (now - t_previous) * age when that is tighter than speed * age.
+    None: speed bound only."""
     max_age_s: float = 2.0
     """A neighbour's position older than this is forgotten [s] (it left communication)."""
     overhear: bool = True
@@ -82,6 +88,8 @@ class SafetyConfig:
         require(self.margin_m >= 0, "safety.margin_m", self.margin_m, "must be >= 0")
         require(self.speed_max_mps is None or self.speed_max_mps > 0, "safety.speed_max_mps",
                 self.speed_max_mps, "must be > 0 (or left out for no cap)")
+        require(self.accel_max_mps2 is None or self.accel_max_mps2 > 0, "safety.accel_max_mps2",
+                self.accel_max_mps2, "must be > 0 (or left out)")
         require(self.max_age_s > 0, "safety.max_age_s", self.max_age_s, "must be > 0")
         require(self.slack_weight > 0, "safety.slack_weight", self.slack_weight, "must be > 0")
 
@@ -98,6 +106,8 @@ class Neighbour:
     """Its footprint radius [m]."""
     speed_max: float
     """Bound on its speed [m/s] (inflates its disc by speed_max * age)."""
+    spread: float | None = None
+    """Distance it may be from ``position`` now [m], when known better than speed_max * age."""
 
 
 @dataclass(frozen=True)
@@ -218,7 +228,8 @@ class SafetyFilter:
             if nb.age > cfg.max_age_s:
                 continue
             pts.append(nb.position)
-            dist.append(self.r_eff + nb.radius + cfg.margin_m + nb.speed_max * max(nb.age, 0.0))
+            spread = nb.speed_max * max(nb.age, 0.0) if nb.spread is None else nb.spread
+            dist.append(self.r_eff + nb.radius + cfg.margin_m + spread)
             gain.append(0.5 * self.gamma)  # its share: the neighbour's filter takes the other half
         if cfg.use_ranges and ranges is not None and angles is not None:
             x, y, th = (float(v) for v in pose)
@@ -250,7 +261,9 @@ class SafetyFilter:
         cap_ok = self._cap is None or self.centre_speed(u_sat) <= self._cap * (1 + 1e-9)
         h_min = float(h.min()) if len(h) else math.inf
         A = n @ self.centre_velocity_map(float(pose[2]))  # (k, m): n^T G(theta)
-        rhs = -gain * h
+        # a barrier already crossed (an overlapping start, or a stale neighbour whose disc has
+        # grown over the robot) asks only not to close in further: stopping stays feasible
+        rhs = -gain * np.maximum(h, 0.0)
         if cap_ok and np.all(A @ u_sat >= rhs - 1e-12):
             return SafetyResult(u_nom, False, 0.0, 0.0, h_min)
         u, sigma, ok = self._solve(A, rhs, u_sat)
@@ -316,7 +329,9 @@ class SafetyGuard:
         cap = config.speed_max_mps
         self._bounds = {n: (m.radius, max_speed(m) if cap is None else min(cap, max_speed(m)))
                         for n, m in models.items()}
+        self._accel = config.accel_max_mps2
         self._heard: dict[str, tuple[float, float, float]] = {}
+        self._before: dict[str, tuple[float, float, float]] = {}  # the sample before the newest
         self.interventions = 0
         """Control instants at which the command was changed."""
         self.change_max = 0.0
@@ -332,13 +347,26 @@ class SafetyGuard:
             return
         old = self._heard.get(sender)
         if old is None or stamp >= old[2]:
+            if old is not None and stamp > old[2]:
+                self._before[sender] = old
             self._heard[sender] = (float(position[0]), float(position[1]), float(stamp))
 
     def neighbours(self, now: float) -> list[Neighbour]:
         out = []
         for sender, (x, y, stamp) in sorted(self._heard.items()):
             r, s = self._bounds[sender]
-            out.append(Neighbour((x, y), max(now - stamp, 0.0), r, s))
+            age = max(now - stamp, 0.0)
+            nb = Neighbour((x, y), age, r, s)
+            prev = self._before.get(sender)
+            if self._accel is not None and prev is not None:
+                # velocity averaged over [t0, t1] is within accel * (t - t0) of the velocity at
+                # any t in [t1, now]: extrapolate and bound the error of the displacement
+                x0, y0, t0 = prev
+                vx, vy = (x - x0) / (stamp - t0), (y - y0) / (stamp - t0)
+                spread = self._accel * (now - t0) * age
+                if spread < s * age:
+                    nb = Neighbour((x + vx * age, y + vy * age), age, r, s, spread)
+            out.append(nb)
         return out
 
     def apply(self, pose, command, now: float, ranges=None, angles=None) -> SafetyResult:

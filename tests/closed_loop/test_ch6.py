@@ -157,6 +157,8 @@ def _switching_run(network=None, **changes):
             raw["controller"]["switch_at"] = value[0]
             for r, slots in zip(raw["robots"], value[1]):
                 r["controller"]["slots"] = slots
+        elif key == "safety":  # the scenario's safety filter (docs/safety.md) on or off
+            raw["safety"] = {**raw.get("safety", {}), "enabled": value}
         else:
             raw["controller"][key] = value
     return run_scenario(parse_scenario(raw))
@@ -196,7 +198,8 @@ def test_e6_6_repulsion_shapes_crossing_references():
     """Robots 1 and 3 swap sides of the path (their slots cross head-on): without the
     repulsive shaping they collide, with it they pass one behind the other."""
     swap = ([3.0], [[[0.0, 0.5], [0.0, -0.5]], [[0.0, 0.0], [0.8, 0.0]], [[0.0, -0.5], [0.0, 0.5]]])
-    shaped = _switching_run(slots=swap)
-    bare = _switching_run(slots=swap, k_r=1e-9)
+    # the controller's own shaping, without the scenario's safety filter
+    shaped = _switching_run(slots=swap, safety=False)
+    bare = _switching_run(slots=swap, k_r=1e-9, safety=False)
     assert _min_separation(bare.trace) < 0.12 and bare.metrics["fleet"]["collisions"] >= 1
     assert _min_separation(shaped.trace) > 0.2 and shaped.metrics["fleet"]["collisions"] == 0

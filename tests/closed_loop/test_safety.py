@@ -116,3 +116,15 @@ def test_silent_user_controller_is_kept_apart_by_range_readings():
     assert off["fleet"]["collisions"] >= 1
     on = _head_on("unicycle", "build_silent", {"enabled": True}, sensors)
     assert on["fleet"]["collisions"] == 0
+
+
+def test_formation_switching_without_its_repulsion_is_kept_apart_by_the_filter():
+    # E6.6 with robots 1 and 3 swapping sides head-on and the controller's repulsive shaping
+    # switched off (tests/closed_loop/test_ch6.py shows they collide without the filter)
+    raw = dict(load_scenario(config("e6.6-")).raw)
+    raw["controller"] = {**raw["controller"], "switch_at": [3.0], "k_r": 1e-9}
+    slots = ([[0.0, 0.5], [0.0, -0.5]], [[0.0, 0.0], [0.8, 0.0]], [[0.0, -0.5], [0.0, 0.5]])
+    raw["robots"] = [{**r, "controller": {**r.get("controller", {}), "slots": sl}} for r, sl in zip(raw["robots"], slots)]
+    m = run_scenario(parse_scenario({**raw, "safety": {"enabled": True}})).metrics
+    assert m["fleet"]["collisions"] == 0 and m["fleet"]["min_separation_m"] >= 0.12
+    assert sum(r["safety_interventions"] for r in m["robots"].values()) > 0

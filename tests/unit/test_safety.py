@@ -171,3 +171,20 @@ def test_config_errors_name_key_value_and_rule():
         from_table(SafetyConfig, {"speed_max_mps": 0.0}, "safety")
     with pytest.raises(ConfigError, match=r"safety.gamma = 30.0 is not allowed; must be <= 1/run.dt"):
         SafetyFilter(SafetyConfig(gamma=30.0), OmniModel(), 0.05)
+
+
+def test_guard_extrapolates_with_an_acceleration_bound():
+    models = {"a": OmniModel(), "b": OmniModel()}
+    g = SafetyGuard(SafetyConfig(enabled=True, accel_max_mps2=1.0, speed_max_mps=2.0), "a", models, 0.1)
+    g.hear("b", [1.0, 0.0], 0.0)
+    g.hear("b", [1.05, 0.0], 0.1)  # 0.5 m/s along x
+    (nb,) = g.neighbours(0.3)
+    # extrapolated 0.2 s ahead, spread 1.0 * (0.3 - 0.0) * 0.2 = 0.06 m instead of 2.0 * 0.2 = 0.4 m
+    assert nb.position == pytest.approx((1.15, 0.0)) and nb.spread == pytest.approx(0.06)
+    g1 = SafetyGuard(SafetyConfig(enabled=True, speed_max_mps=2.0), "a", models, 0.1)
+    g1.hear("b", [1.0, 0.0], 0.0)
+    g1.hear("b", [1.05, 0.0], 0.1)
+    (nb1,) = g1.neighbours(0.3)
+    assert nb1.position == (1.05, 0.0) and nb1.spread is None  # speed bound only: 0.4 m
+    f = g.filter
+    assert f.barriers([0, 0, 0], [nb])[1][0] == pytest.approx(1.15 - 0.4 - CFG.margin_m - 0.06)

@@ -1,6 +1,9 @@
-"""One robot process: Zenoh in -> controller step -> Zenoh out.
+"""One robot: link in -> controller step -> link out.
 
-The process subscribes only to its own observation key and its neighbours' message keys
+The node talks through a :class:`copath.wire.link.Link`: over Zenoh in its own process
+(``main``), or on an in-memory bus inside the in-process loop
+(``orchestrator/inprocess.py``), where a synchronous link runs each lockstep step inside
+the observation's delivery. The node subscribes only to its own observation key and its neighbours' message keys
 (every robot's on a range-limited graph, where its runtime drops what comes from beyond
 range), declares a liveliness token once it is ready, and then:
 
@@ -10,7 +13,11 @@ range), declares a liveliness token once it is ready, and then:
   robots.
 
 Peer messages are published before the command of the same step, so in lockstep they
-reach the router before the simulator can start the next tick.
+reach the router before the simulator can start the next tick. The lockstep barrier is
+event-driven: the step waits on a condition the peer callback signals, not a sleep loop.
+
+Every received record goes through one callback per record type (``_on_obs``,
+``_on_peer``, ``_on_overheard``, ``_on_sim``), the place for receiver-side checks.
 """
 
 from __future__ import annotations
@@ -27,8 +34,8 @@ import time
 from copath.scenario import ConfigError, load_scenario
 from copath.wire.cli import add_config_arguments, session_config_from_args
 from copath.wire.keys import Keys
+from copath.wire.link import Link
 from copath.wire.messages import End, Obs, PeerEnvelope, Start, Stats
-from copath.wire.session import ZenohLink
 
 from .runtime import RobotRuntime
 
@@ -38,11 +45,13 @@ __all__ = ["AgentNode", "main"]
 
 
 class AgentNode:
-    def __init__(self, runtime: RobotRuntime, keys: Keys, link: ZenohLink, clock: str) -> None:
+    def __init__(self, runtime: RobotRuntime, keys: Keys, link: Link, clock: str) -> None:
         self.rt = runtime
         self.keys = keys
         self.link = link
         self.clock = clock
+        self.inline = bool(getattr(link, "synchronous", False)) and clock == "lockstep"
+        """Step inside the observation's delivery (a synchronous link, lockstep)."""
         self.obs_q: queue.Queue = queue.Queue()
         self.latest_obs: Obs | None = None
         self.peers: collections.deque = collections.deque()
@@ -51,15 +60,24 @@ class AgentNode:
         self.ended = threading.Event()
         self.wall_t0 = 0.0
         self.barrier_timeout_s = 5.0
+        self._arrived = threading.Condition()  # signalled by every peer message (the barrier)
+        self._finished = False
 
+    # -- receive: one callback per record type (link threads, or inline) -------------
     def _on_obs(self, key: str, rec) -> None:
         if isinstance(rec, Obs):
             self.latest_obs = rec
-            self.obs_q.put(rec)
+            if self.inline:
+                self._lockstep_step(rec)
+            else:
+                self.obs_q.put(rec)
 
     def _on_peer(self, key: str, rec) -> None:
         if isinstance(rec, PeerEnvelope):
             self.peers.append(rec)
+            if not self.inline:
+                with self._arrived:
+                    self._arrived.notify()
 
     def _on_overheard(self, key: str, rec) -> None:
         if isinstance(rec, PeerEnvelope):
@@ -72,6 +90,10 @@ class AgentNode:
         elif isinstance(rec, End):
             self.ended.set()
             self.obs_q.put(None)
+            with self._arrived:
+                self._arrived.notify()
+            if self.inline:
+                self.finish()
 
     def _on_sim_alive(self, key: str, alive: bool) -> None:
         if not alive and not self.ended.is_set():
@@ -81,17 +103,25 @@ class AgentNode:
 
     def _await_peers(self, obs: Obs) -> None:
         """Lockstep barrier: wait until every message the neighbours sent by the end of
-        the previous tick has arrived (``Obs.expect``), so runs are deterministic."""
-        deadline = time.monotonic() + self.barrier_timeout_s
+        the previous tick has arrived (``Obs.expect``), so runs are deterministic. The
+        wait sleeps on a condition that each arriving peer message signals."""
         self._drain_peers()
-        while self.rt.missing(obs.expect):
-            if time.monotonic() > deadline or self.ended.is_set():
-                late = self.rt.missing(obs.expect)
-                self.rt.counters.extra["barrier_timeouts"] = self.rt.counters.extra.get("barrier_timeouts", 0) + 1
-                logger.warning("tick %d: still missing peer messages %s; stepping without them", obs.k, late)
-                break
-            time.sleep(0.0002)
+        if not self.rt.missing(obs.expect):
+            return
+        deadline = time.monotonic() + self.barrier_timeout_s
+        while True:
+            with self._arrived:
+                if not self.peers:
+                    left = deadline - time.monotonic()
+                    if left <= 0 or self.ended.is_set() or self.inline:
+                        late = self.rt.missing(obs.expect)
+                        self.rt.counters.extra["barrier_timeouts"] = self.rt.counters.extra.get("barrier_timeouts", 0) + 1
+                        logger.warning("tick %d: still missing peer messages %s; stepping without them", obs.k, late)
+                        return
+                    self._arrived.wait(timeout=left)
             self._drain_peers()
+            if not self.rt.missing(obs.expect):
+                return
 
     def _newest_obs(self) -> Obs | None:
         """Realtime: the newest observation, carrying the sensor measurements of every
@@ -125,7 +155,14 @@ class AgentNode:
         if out.estimate is not None:
             self.link.publish(self.keys.estimate(name), out.estimate)
 
-    def run(self) -> None:
+    def _lockstep_step(self, obs: Obs) -> None:
+        self._await_peers(obs)
+        self._emit(self.rt.step(obs, obs.t))
+
+    def start(self) -> None:
+        """Subscribe, then declare the liveliness token (ready). With a synchronous link
+        this is all: the node then steps inside each observation's delivery and sends its
+        closing account when the run's end arrives."""
         name = self.rt.name
         self.link.subscribe(self.keys.obs(name), self._on_obs)
         for key in self.rt.subscriptions:
@@ -136,20 +173,27 @@ class AgentNode:
         self.link.subscribe(self.keys.end, self._on_sim)
         self.link.watch_liveliness(self.keys.alive("sim"), self._on_sim_alive)
         self.link.declare_token(self.keys.alive(name))  # ready: subscriptions are in place
+
+    def run(self) -> None:
+        """Start and serve the run on this thread until it ends (threaded links)."""
+        self.start()
         if self.clock == "lockstep":
             while True:
                 obs = self.obs_q.get()
                 if obs is None:
                     break
-                self._await_peers(obs)
-                self._emit(self.rt.step(obs, obs.t))
+                self._lockstep_step(obs)
         else:
             while not self.started.wait(timeout=0.5):
                 if self.ended.is_set():
                     break
             period = self.rt.dt
             next_t = time.time()
+            extra = self.rt.counters.extra
+            extra.setdefault("deadline_misses", 0)  # periods whose step ended after the next period began
+            extra.setdefault("realtime_periods", 0)
             while not self.ended.is_set():
+                extra["realtime_periods"] += 1
                 obs = self._newest_obs()
                 if obs is not None:
                     self._drain_peers()
@@ -160,11 +204,18 @@ class AgentNode:
                 if sleep > 0:
                     self.ended.wait(timeout=sleep)
                 else:
-                    self.rt.counters.extra["deadline_misses"] = self.rt.counters.extra.get("deadline_misses", 0) + 1
+                    extra["deadline_misses"] += 1
                     next_t = time.time()
+        self.finish()
+
+    def finish(self) -> None:
+        """Publish the closing account (once)."""
+        if self._finished:
+            return
+        self._finished = True
         counters = self.rt.closing_counters()
         counters["rejects"] = self.link.rejects
-        self.link.publish(self.keys.stats(name), Stats(name, self.link.published, counters))
+        self.link.publish(self.keys.stats(self.rt.name), Stats(self.rt.name, self.link.published, counters))
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -186,6 +237,8 @@ def main(argv: list[str] | None = None) -> int:
     except (ConfigError, ValueError) as exc:
         print(f"copath agent: {exc}", file=sys.stderr)
         return 2
+    from copath.wire.session import ZenohLink  # noqa: PLC0415  (the in-process loop never loads zenoh)
+
     with ZenohLink.open(conf) as link:
         AgentNode(runtime, keys, link, scenario.run.clock).run()
         time.sleep(0.2)  # let the router forward the closing record before the session closes

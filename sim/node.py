@@ -1,4 +1,8 @@
-"""The simulator process: owns time and the world, talks to the robots over Zenoh.
+"""The simulator node: owns time and the world, talks to the robots through a link.
+
+The node runs over Zenoh in its own process (``main``) or on the in-memory bus of the
+in-process loop (``orchestrator/inprocess.py``): the same lockstep protocol either way
+(:class:`copath.wire.link.Link`).
 
 ``lockstep`` clock: tick k+1 starts when every live robot has answered tick k, or after
 ``run.tick_timeout_s``, in which case the late robot keeps its last command and the miss
@@ -18,12 +22,13 @@ import queue
 import sys
 import threading
 import time
+from typing import Callable
 
 from copath.scenario import ConfigError, Scenario, load_scenario
 from copath.wire.cli import add_config_arguments, session_config_from_args
 from copath.wire.keys import Keys
+from copath.wire.link import Link
 from copath.wire.messages import Command, End, Event, Start, Stats
-from copath.wire.session import ZenohLink
 
 from .world import World
 
@@ -33,10 +38,16 @@ __all__ = ["SimNode", "main"]
 
 
 class SimNode:
-    def __init__(self, scenario: Scenario, keys: Keys, link: ZenohLink, start_timeout_s: float = 120.0) -> None:
+    def __init__(self, scenario: Scenario, keys: Keys, link: Link, start_timeout_s: float = 120.0,
+                 duration_s: float | None = None, on_tick: Callable[[int], None] | None = None) -> None:
         self.scenario = scenario
         self.keys = keys
         self.link = link
+        self.duration_s = scenario.run.duration_s if duration_s is None else duration_s
+        self.on_tick = on_tick
+        """Called with k after each lockstep tick (progress display)."""
+        self.synchronous = bool(getattr(link, "synchronous", False))
+        self._started = False
         self.world = World(scenario)
         self.names = list(scenario.robot_names)
         self.start_timeout_s = start_timeout_s
@@ -68,10 +79,17 @@ class SimNode:
         self.link.publish(self.keys.event("sim"), Event(float(self.world.t), "sim", what, detail))
 
     # -- run ------------------------------------------------------------------------------
-    def run(self) -> bool:
+    def start(self) -> None:
+        """Subscribe to the commands, watch the robots' tokens, declare the simulator's."""
+        if self._started:
+            return
+        self._started = True
         self.link.subscribe(self.keys.all_cmds, self._on_cmd)
         self.link.watch_liveliness(self.keys.all_alive, self._on_alive)
         self.link.declare_token(self.keys.alive("sim"))
+
+    def run(self) -> bool:
+        self.start()
         deadline = time.monotonic() + self.start_timeout_s
         with self._alive_cv:
             while not set(self.names) <= self.alive:
@@ -99,13 +117,14 @@ class SimNode:
 
     def _lockstep(self) -> tuple[int, bool, str]:
         run = self.scenario.run
-        n_ticks = int(round(run.duration_s / run.dt))
+        n_ticks = int(round(self.duration_s / run.dt))
         for k in range(n_ticks):
             self.world.t = k * run.dt
             for n in self.names:
                 self.link.publish(self.keys.obs(n), self.world.observe(n, k, self.sent))
             waiting = set(self.names)
-            deadline = time.monotonic() + run.tick_timeout_s
+            # a synchronous link has delivered every command by now: nothing to wait for
+            deadline = time.monotonic() + (0.0 if self.synchronous else run.tick_timeout_s)
             while waiting:
                 reason = self._lost_reason()
                 if reason:
@@ -128,6 +147,8 @@ class SimNode:
             self.world.saturate_all()
             self.link.publish(self.keys.truth, self.world.truth(k))
             self.world.advance(run.dt)
+            if self.on_tick is not None:
+                self.on_tick(k)
         return n_ticks, True, "duration reached"
 
     def _realtime(self) -> tuple[int, bool, str]:
@@ -136,7 +157,7 @@ class SimNode:
         next_obs = 0.0
         k = 0
         t = 0.0
-        while t < run.duration_s - 1e-9:
+        while t < self.duration_s - 1e-9:
             reason = self._lost_reason()
             if reason:
                 return k, False, reason
@@ -185,6 +206,8 @@ def main(argv: list[str] | None = None) -> int:
     except (ConfigError, ValueError) as exc:
         print(f"copath sim: {exc}", file=sys.stderr)
         return 2
+    from copath.wire.session import ZenohLink  # noqa: PLC0415
+
     with ZenohLink.open(conf) as link:
         ok = SimNode(scenario, keys, link, args.start_timeout).run()
         time.sleep(0.2)  # let the router forward the closing records before the session closes

@@ -1,0 +1,163 @@
+"""The transport the nodes talk through: a small :class:`Link` interface, two implementations.
+
+The robot and simulator nodes (``agent/node.py``, ``sim/node.py``) only publish records,
+subscribe to key expressions, declare liveliness tokens and watch them. Behind that:
+
+- :class:`copath.wire.session.ZenohLink`: one Zenoh session (separate processes);
+- :class:`MemoryLink` on a :class:`MemoryBus`: every node of a run in one process. A
+  publish delivers the record object to every matching subscriber *synchronously*, in the
+  publisher's thread, without packing it (``synchronous = True``), so the in-process loop
+  (``orchestrator/inprocess.py``) runs the very same node code, lockstep protocol
+  included, with no threads and no copies.
+
+Key expressions follow Zenoh's rules for the two wildcards copath uses: ``*`` is one
+chunk, ``**`` is any number of chunks (docs/performance.md, "One lockstep protocol").
+"""
+
+from __future__ import annotations
+
+import logging
+from typing import Any, Callable, Protocol, runtime_checkable
+
+logger = logging.getLogger(__name__)
+
+__all__ = ["Link", "MemoryBus", "MemoryLink", "key_matches", "Callback"]
+
+Callback = Callable[[str, Any], None]
+
+
+@runtime_checkable
+class Link(Protocol):
+    """What a node needs from its transport."""
+
+    published: int
+    """Records this link published (the closing account's ``published``)."""
+    rejects: int
+    """Received records refused (schema errors, failing callbacks)."""
+    synchronous: bool
+    """True when ``publish`` has already run every subscriber's callback when it returns
+    (in-memory); False when records arrive on other threads (Zenoh)."""
+
+    def publish(self, key: str, record: Any) -> None: ...
+
+    def subscribe(self, key_expr: str, callback: Callback) -> None: ...
+
+    def declare_token(self, key: str) -> None: ...
+
+    def watch_liveliness(self, key_expr: str, callback: Callable[[str, bool], None]) -> None: ...
+
+    def close(self) -> None: ...
+
+
+def key_matches(key: str, expr: str) -> bool:
+    """True when the concrete ``key`` matches key expression ``expr`` (``*``: one chunk,
+    ``**``: zero or more chunks)."""
+    return _match(key.split("/"), expr.split("/"))
+
+
+def _match(k: list[str], e: list[str]) -> bool:
+    if not e:
+        return not k
+    head = e[0]
+    if head == "**":
+        return any(_match(k[i:], e[1:]) for i in range(len(k) + 1))
+    if not k:
+        return False
+    if head != "*" and head != k[0]:
+        return False
+    return _match(k[1:], e[1:])
+
+
+class MemoryBus:
+    """The in-process network of one run: subscriptions, tokens and (optionally) the log.
+
+    ``clock()`` gives the log time [s] of a record (the in-process loop passes the
+    simulator's time); with ``record=True`` every published record is kept in
+    :attr:`records` as ``(log time [ns], key, record)``, like the recorder's MCAP log.
+    """
+
+    def __init__(self, clock: Callable[[], float] | None = None, record: bool = True) -> None:
+        self.clock = clock or (lambda: 0.0)
+        self.record = record
+        self.records: list[tuple[int, str, Any]] = []
+        self._subs: list[tuple[str, Callback, "MemoryLink"]] = []
+        self._route: dict[str, list[tuple[Callback, "MemoryLink"]]] = {}
+        self._tokens: set[str] = set()
+        self._watchers: list[tuple[str, Callable[[str, bool], None]]] = []
+
+    def link(self) -> "MemoryLink":
+        return MemoryLink(self)
+
+    def _subscribe(self, expr: str, callback: Callback, link: "MemoryLink") -> None:
+        self._subs.append((expr, callback, link))
+        self._route.clear()
+
+    def _unsubscribe(self, link: "MemoryLink") -> None:
+        self._subs = [s for s in self._subs if s[2] is not link]
+        self._route.clear()
+
+    def _deliver(self, key: str, record: Any) -> None:
+        if self.record:
+            self.records.append((int(round(self.clock() * 1e9)), key, record))
+        route = self._route.get(key)
+        if route is None:
+            route = self._route[key] = [(cb, ln) for expr, cb, ln in self._subs if key_matches(key, expr)]
+        for cb, ln in route:
+            try:
+                cb(key, record)
+            except Exception:  # like the Zenoh link: count, log, keep delivering
+                ln.rejects += 1
+                logger.exception("subscriber callback failed on %s", key)
+
+    def _token(self, key: str, alive: bool) -> None:
+        (self._tokens.add if alive else self._tokens.discard)(key)
+        for expr, cb in list(self._watchers):
+            if key_matches(key, expr):
+                cb(key, alive)
+
+    def _watch(self, expr: str, callback: Callable[[str, bool], None]) -> None:
+        self._watchers.append((expr, callback))
+        for key in sorted(self._tokens):  # history, like Zenoh's liveliness subscriber
+            if key_matches(key, expr):
+                callback(key, True)
+
+
+class MemoryLink:
+    """One node's :class:`Link` on a :class:`MemoryBus` (records are passed, not packed)."""
+
+    synchronous = True
+
+    def __init__(self, bus: MemoryBus) -> None:
+        self.bus = bus
+        self.published = 0
+        self.rejects = 0
+        self._tokens: list[str] = []
+        self._closed = False
+
+    def __enter__(self) -> "MemoryLink":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def publish(self, key: str, record: Any) -> None:
+        self.published += 1
+        self.bus._deliver(key, record)
+
+    def subscribe(self, key_expr: str, callback: Callback) -> None:
+        self.bus._subscribe(key_expr, callback, self)
+
+    def declare_token(self, key: str) -> None:
+        self._tokens.append(key)
+        self.bus._token(key, True)
+
+    def watch_liveliness(self, key_expr: str, callback: Callable[[str, bool], None]) -> None:
+        self.bus._watch(key_expr, callback)
+
+    def close(self) -> None:
+        if self._closed:
+            return
+        self._closed = True
+        self.bus._unsubscribe(self)
+        for key in self._tokens:
+            self.bus._token(key, False)

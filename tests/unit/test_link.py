@@ -1,0 +1,92 @@
+"""The in-memory Link: key expressions, synchronous delivery, liveliness, and the node
+code running the lockstep protocol on it (the in-process loop)."""
+
+from __future__ import annotations
+
+import pytest
+
+from copath.scenario import load_scenario
+from copath.wire.keys import Keys
+from copath.wire.link import Link, MemoryBus, MemoryLink, key_matches
+from copath.wire.messages import Stats
+from copath.wire.session import ZenohLink
+from orchestrator.inprocess import run_scenario
+from tests.conftest import config
+
+
+@pytest.mark.parametrize(("key", "expr", "hit"), [
+    ("copath/r/peer/r1/all", "copath/r/peer/*/all", True),
+    ("copath/r/peer/r1/to/r2", "copath/r/peer/*/all", False),
+    ("copath/r/peer/r1/to/r2", "copath/r/peer/*/to/r2", True),
+    ("copath/r/peer/r1/to/r3", "copath/r/peer/*/to/r2", False),
+    ("copath/r/robot/r1/cmd", "copath/r/**", True),
+    ("copath/r", "copath/r/**", True),
+    ("copath/r/robot/r1/cmd", "copath/r/robot/*/cmd", True),
+    ("copath/r/robot/r1/obs", "copath/r/robot/*/cmd", False),
+    ("copath/other/robot/r1/cmd", "copath/r/**", False),
+])
+def test_key_expressions_match_like_zenoh(key, expr, hit):
+    assert key_matches(key, expr) is hit
+
+
+def test_publish_delivers_synchronously_to_every_matching_subscriber_and_is_recorded():
+    bus = MemoryBus(clock=lambda: 1.5)
+    a, b = bus.link(), bus.link()
+    got_a, got_b = [], []
+    a.subscribe("k/*/x", lambda k, r: got_a.append((k, r)))
+    b.subscribe("k/**", lambda k, r: got_b.append((k, r)))
+    rec = Stats("p", 0, {})
+    b.publish("k/1/x", rec)
+    b.publish("k/1/y", rec)
+    assert got_a == [("k/1/x", rec)]  # the object itself, no copy
+    assert got_b == [("k/1/x", rec), ("k/1/y", rec)]
+    assert b.published == 2 and a.published == 0
+    assert bus.records == [(1_500_000_000, "k/1/x", rec), (1_500_000_000, "k/1/y", rec)]
+    assert isinstance(a, Link) and MemoryLink.synchronous and not getattr(ZenohLink, "synchronous", False)
+
+
+def test_a_failing_callback_is_counted_as_a_reject_and_delivery_goes_on():
+    bus = MemoryBus()
+    bad, good = bus.link(), bus.link()
+    got = []
+
+    def boom(k, r):
+        raise RuntimeError("boom")
+
+    bad.subscribe("k", boom)
+    good.subscribe("k", lambda k, r: got.append(r))
+    good.publish("k", 1)
+    assert bad.rejects == 1 and got == [1]
+
+
+def test_liveliness_has_history_and_a_closed_link_drops_its_tokens_and_subscriptions():
+    bus = MemoryBus()
+    a, w = bus.link(), bus.link()
+    a.declare_token("run/alive/r1")
+    seen = []
+    w.watch_liveliness("run/alive/*", lambda k, alive: seen.append((k, alive)))
+    assert seen == [("run/alive/r1", True)]
+    got = []
+    a.subscribe("x", lambda k, r: got.append(r))
+    a.close()
+    assert seen[-1] == ("run/alive/r1", False)
+    w.publish("x", 1)
+    assert got == []
+
+
+def test_in_process_run_is_the_node_code_with_closing_accounts_and_counts():
+    sc = load_scenario(config("e5.5-"))
+    res = run_scenario(sc, duration_s=3.0)
+    keys = Keys(res.metrics["run_id"])
+    stats = {r.proc: r for _, k, r in res.records if isinstance(r, Stats)}
+    assert set(stats) == {"sim", "r1", "r2", "r3"}
+    n_ticks = 30
+    counts: dict[str, int] = {}
+    for _, k, _ in res.records:
+        counts[k] = counts.get(k, 0) + 1
+    assert counts[keys.truth] == n_ticks and all(counts[keys.cmd(n)] == n_ticks for n in ("r1", "r2", "r3"))
+    # every published record is in the log, and each process accounts for its own
+    assert res.metrics["fleet"]["messages_published"] == sum(s.published for s in stats.values()) == len(res.records) - 4
+    # the lockstep barrier never had to give up: every expected message was already delivered
+    assert all("barrier_timeouts" not in s.counters for s in stats.values())
+    assert all(s.counters["steps"] == n_ticks for p, s in stats.items() if p != "sim")

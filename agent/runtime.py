@@ -32,7 +32,8 @@ from copath.safety import SafetyGuard
 from copath.scenario import Scenario
 from copath.wire.faults import FaultyInbox, LinkFaults
 from copath.wire.keys import Keys
-from copath.wire.messages import Command, Estimate, Obs, PeerEnvelope, Telemetry, to_plain
+from copath.wire.messages import Command, Estimate, Obs, PeerEnvelope, Telemetry, WireError, to_plain
+from copath.wire.trust import RejectLog, StampWindow
 
 logger = logging.getLogger(__name__)
 
@@ -92,6 +93,11 @@ class RobotRuntime:
         self.seq = 0
         self.sent: dict[str, int] = {"*": 0}
         self.received_from: dict[str, int] = {}
+        # stamps outside the window are rejected before the fault queue (copath.wire.trust);
+        # the agent process shares its link's log, so every reject is counted once
+        self.stamps = StampWindow.for_run(self.dt, scenario.network.delay_ms, scenario.network.jitter_ms)
+        self.reject_log = RejectLog()
+        self._now = 0.0
         self.sensors = scenario.sensors
         self._angles = sensor_angles(scenario.sensors.count) if scenario.sensors.enabled else None
         self._cmd_size = spec.model.command_size
@@ -124,7 +130,7 @@ class RobotRuntime:
 
     def overhear(self, env: PeerEnvelope) -> None:
         """Accept an overheard envelope: only its sender's position and stamp are used."""
-        if self._overhear is not None and env.sender != self.name:
+        if self._overhear is not None and env.sender != self.name and self._stamp_ok(env, "overheard"):
             self.counters.extra["overheard"] = self.counters.extra.get("overheard", 0) + 1
             self._overhear.push(env.sender, env.stamp, env)
 
@@ -142,9 +148,18 @@ class RobotRuntime:
                 out[sender] = n - got
         return out
 
+    def _stamp_ok(self, env: PeerEnvelope, where: str) -> bool:
+        try:
+            self.stamps.check(env.stamp, self._now)
+        except WireError as exc:
+            self.reject_log.add(f"peer/{env.sender} ({where})", str(exc))
+            return False
+        return True
+
     def receive(self, env: PeerEnvelope) -> None:
-        """Accept a peer envelope that arrived (before faults)."""
-        if env.sender == self.name:
+        """Accept a peer envelope that arrived (before faults); one stamped outside the
+        receiver's :class:`~copath.wire.trust.StampWindow` is rejected and counted."""
+        if env.sender == self.name or not self._stamp_ok(env, "peer"):
             return
         self.counters.received += 1
         self.received_from[env.sender] = self.received_from.get(env.sender, 0) + 1
@@ -154,6 +169,7 @@ class RobotRuntime:
 
     def step(self, obs: Obs, now: float) -> StepOutput:
         """Run one control instant at controller time ``now`` with the latest observation."""
+        self._now = max(self._now, float(now))
         pose = np.asarray(obs.pose, dtype=float)
         estimate = None
         if obs.meas is not None:
@@ -246,6 +262,7 @@ class RobotRuntime:
     def closing_counters(self) -> dict:
         self.counters.dropped_by_faults = self.faults.dropped
         self.counters.partitioned = self.faults.partitioned
+        self.counters.rejected = self.reject_log.total
         if self.safety is not None:
             self.counters.extra.update(self.safety.counters())
         return self.counters.as_dict()

@@ -55,6 +55,9 @@ ROBOT_KEYS = (
 # the safety filter (copath.safety), from the runtime's safety_* telemetry; null when it is off
 SAFETY_KEYS = ("safety_interventions", "safety_change_max", "safety_ms_p50", "safety_ms_p99")
 ROBOT_KEYS = ROBOT_KEYS + SAFETY_KEYS
+# received messages the robot refused (schema, origin, stamp window; copath.wire.trust), from
+# its closing account; null when the robot left none (killed) (docs/faults.md)
+ROBOT_KEYS = ROBOT_KEYS + ("messages_rejected",)
 FLEET_KEYS = (
     "coordination_error_max_m",
     "coordination_error_rms_m",
@@ -77,6 +80,7 @@ FLEET_KEYS = (
     "formation_error_max_reported_m",
     "tasks_completed_reported",
     "task_times_reported_s",
+    "messages_rejected",
 )
 METRIC_KEYS = {"robots": ROBOT_KEYS, "fleet": FLEET_KEYS}
 
@@ -174,6 +178,13 @@ def trace_from_records(records, keys: Keys, radii: dict[str, float] | None = Non
         )
     sim_time = float(truth[-1].t + dt) if truth else 0.0
     return Trace(robots, dt, stats, events, end, sim_time, estimates)
+
+
+def _rejected(counters: dict | None) -> int | None:
+    """Messages a process refused, from its closing account (None without one)."""
+    if counters is None:
+        return None
+    return int(max(int(counters.get("rejects", 0) or 0), int(counters.get("rejected", 0) or 0)))
 
 
 def _f(x) -> float | None:
@@ -299,6 +310,7 @@ def compute_metrics(
             continue
         robots[r.name] = _robot_metrics(rt, settle, r.model.kind, missed.get(r.name, 0))
         robots[r.name].update(estimation_metrics(trace.estimates.get(r.name), rt.pose_at))
+        robots[r.name]["messages_rejected"] = _rejected(trace.stats.get(r.name))
     geometry = team_geometry(scenario)
     series = truth_series(trace, scenario, geometry) if geometry is not None else None
     for n, e in cross_track_series(trace, scenario, geometry, series).items():
@@ -324,6 +336,8 @@ def compute_metrics(
     fleet["messages_dropped_by_faults"] = int(
         sum(int(s.get("dropped_by_faults", 0)) + int(s.get("partitioned", 0)) for s in trace.stats.values())
     )
+    rejected = [_rejected(trace.stats.get(p)) for p in ("sim", *scenario.robot_names)]
+    fleet["messages_rejected"] = None if all(n is None for n in rejected) else sum(n or 0 for n in rejected)
     fe = [d["formation_error"] for rt in trace.robots.values() for t, d in zip(rt.telemetry_t, rt.telemetry)
           if d.get("formation_error") is not None and t >= settle - 1e-9 and not d.get("in_transition", False)]
     if fe:

@@ -58,8 +58,22 @@ def to_plain(x: Any) -> Any:
     return x
 
 
+def _finite(v: Any) -> bool:
+    """A number that is not NaN or infinite (ints always; bools are not numbers)."""
+    if isinstance(v, bool):
+        return False
+    if isinstance(v, int):
+        return True
+    return isinstance(v, float) and math.isfinite(v)
+
+
+def _distance(v: Any) -> bool:
+    """A finite number, or +inf (a range sensor or clearance that sees nothing)."""
+    return _finite(v) or (isinstance(v, float) and v == math.inf)
+
+
 _CHECKS = {
-    "float": lambda v: isinstance(v, (int, float)) and not isinstance(v, bool),
+    "float": _finite,
     "int": lambda v: isinstance(v, int) and not isinstance(v, bool),
     "bool": lambda v: isinstance(v, bool),
     "str": lambda v: isinstance(v, str),
@@ -75,6 +89,9 @@ _CHECKS = {
     "strs": lambda v: isinstance(v, list) and all(isinstance(e, str) for e in v),
     "bools": lambda v: isinstance(v, list) and all(isinstance(e, bool) for e in v),
     "matrix": lambda v: isinstance(v, list) and all(_CHECKS["floats"](e) for e in v),
+    "distances?": lambda v: v is None or (isinstance(v, list) and all(_distance(e) for e in v)),
+    "counts": lambda v: isinstance(v, dict) and all(isinstance(k, str) and _CHECKS["int"](n) for k, n in v.items()),
+    "counts?": lambda v: v is None or _CHECKS["counts"](v),
 }
 
 
@@ -127,6 +144,8 @@ def validate_payload(kind: str, payload: Any) -> None:
             raise WireError(f"{kind}: missing field {key!r}")
         if not _CHECKS[typ](payload[key]):
             raise WireError(f"{kind}.{key} = {payload[key]!r} is not a {typ}")
+        if typ == "any":
+            _check_plain(payload[key], f"{kind}.{key}")
 
 
 class _Record:
@@ -159,8 +178,8 @@ class Obs(_Record):
     """Simulator -> one robot: its pose estimate and sensors at tick k (key robot/<name>/obs)."""
 
     TYPE: ClassVar[str] = "obs"
-    FIELDS: ClassVar[dict[str, str]] = {"k": "int", "t": "float", "pose": "floats", "ranges": "floats?",
-                                        "expect": "any", "meas": "dict?"}
+    FIELDS: ClassVar[dict[str, str]] = {"k": "int", "t": "float", "pose": "floats", "ranges": "distances?",
+                                        "expect": "counts?", "meas": "dict?"}
     k: int
     t: float
     pose: list[float]
@@ -176,6 +195,12 @@ class Obs(_Record):
     ``fixes`` [[t_taken, x, y]]; ``headings`` [[t_taken, theta]] (sim/sensing.py)."""
 
     _MEAS_WIDTH: ClassVar[dict[str, tuple[int, ...]]] = {"odom": (4, 5), "fixes": (3,), "headings": (2,)}
+
+    def to_dict(self) -> dict[str, Any]:
+        d = super().to_dict()
+        if d["expect"] is not None:  # sender order, not arrival order: equal runs give equal bytes
+            d["expect"] = dict(sorted(d["expect"].items()))
+        return d
 
     @classmethod
     def from_dict(cls, d):
@@ -215,13 +240,18 @@ class Command(_Record):
 
     TYPE: ClassVar[str] = "cmd"
     FIELDS: ClassVar[dict[str, str]] = {"k": "int", "t": "float", "cmd": "floats", "solve_ms": "float",
-                                        "sent": "dict"}
+                                        "sent": "counts"}
     k: int
     t: float
     cmd: list[float]
     solve_ms: float = 0.0
     sent: dict[str, int] = field(default_factory=dict)
     """Peer messages sent so far: ``"*"`` broadcasts, and per receiver name direct ones."""
+
+    def to_dict(self) -> dict[str, Any]:
+        d = super().to_dict()
+        d["sent"] = dict(sorted(d["sent"].items()))
+        return d
 
 
 @dataclass(frozen=True)
@@ -248,7 +278,7 @@ class Truth(_Record):
         "commands": "matrix",
         "violated": "bools",
         "wheel_max": "floats",
-        "clearance": "floats?",
+        "clearance": "distances?",
         "obstacles": "any",
     }
     k: int

@@ -24,6 +24,7 @@ from typing import Any, Callable
 import zenoh
 
 from .messages import WireError, unpack
+from .trust import RejectLog, check_origin
 
 logger = logging.getLogger(__name__)
 
@@ -105,11 +106,25 @@ class ZenohLink:
     def __init__(self, session: zenoh.Session) -> None:
         self.session = session
         self.published = 0
-        self.rejects = 0
+        self.reject_log = RejectLog()
         self._pubs: dict[str, Any] = {}
         self._decls: list[Any] = []
         self._lock = threading.Lock()
         self._closed = False
+
+    @property
+    def rejects(self) -> int:
+        """Messages rejected so far (schema, origin, or a callback that raised)."""
+        return self.reject_log.total
+
+    @rejects.setter
+    def rejects(self, value: int) -> None:  # ``link.rejects += 1`` (a caller's own count)
+        for _ in range(int(value) - self.reject_log.total):
+            self.reject_log.add("", "counted by the caller")
+
+    def reject(self, key: str, message: str) -> None:
+        """Count a message rejected after delivery (e.g. a stamp outside the window)."""
+        self.reject_log.add(key, message)
 
     @classmethod
     def open(cls, conf: SessionConfig) -> "ZenohLink":
@@ -137,15 +152,18 @@ class ZenohLink:
         """Decode every sample on key_expr and call ``callback(key, record)``."""
 
         def handler(sample: zenoh.Sample) -> None:
+            key = str(sample.key_expr)
             try:
                 rec = unpack(sample.payload.to_bytes())
-                callback(str(sample.key_expr), rec)
+                check_origin(key, rec)
+                callback(key, rec)
             except WireError as exc:
-                self.rejects += 1
-                logger.warning("rejected message on %s: %s", sample.key_expr, exc)
-            except Exception:  # never let a callback die silently in a loop
-                self.rejects += 1
-                logger.exception("subscriber callback failed on %s", sample.key_expr)
+                self.reject_log.add(key, str(exc))
+                if self.reject_log.total <= 20 or self.reject_log.total % 1000 == 0:  # a flood stays readable
+                    logger.warning("rejected message on %s: %s (%d so far)", key, exc, self.reject_log.total)
+            except Exception as exc:  # never let a callback die silently in a loop
+                self.reject_log.add(key, f"callback failed: {exc!r}")
+                logger.exception("subscriber callback failed on %s", key)
 
         self._decls.append(self.session.declare_subscriber(key_expr, handler))
 
@@ -155,8 +173,8 @@ class ZenohLink:
         def handler(sample: zenoh.Sample) -> None:
             try:
                 callback(str(sample.key_expr), sample.payload.to_bytes())
-            except Exception:
-                self.rejects += 1
+            except Exception as exc:
+                self.reject_log.add(str(sample.key_expr), f"callback failed: {exc!r}")
                 logger.exception("raw subscriber callback failed on %s", sample.key_expr)
 
         self._decls.append(self.session.declare_subscriber(key_expr, handler))

@@ -27,8 +27,12 @@ NETWORK_HINTS = ("NewConnectionError", "Temporary failure in name resolution", "
                  "No matching distribution", "Network is unreachable")
 
 
-def _run(argv: list[str], cwd: pathlib.Path, timeout: float, env: dict | None = None) -> subprocess.CompletedProcess:
-    """Run a command in its own process group; the whole group is killed on timeout."""
+def _run(argv: list[str], cwd: pathlib.Path, timeout: float) -> subprocess.CompletedProcess:
+    """Run a command in its own process group; the whole group is killed on timeout.
+
+    PYTHONPATH is dropped: other tests may have put the checkout on it, and pip would then
+    take the checkout for an installed copath."""
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
     proc = subprocess.Popen(argv, cwd=str(cwd), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             start_new_session=True, env=env)
     try:
@@ -81,24 +85,23 @@ def test_plain_install_runs_a_bundled_scenario_from_another_directory(wheel, tmp
     assert res.returncode == 0, res.stderr
     work = tmp_path / "elsewhere"
     work.mkdir()
-    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
     where = _run([str(bin_ / "python"), "-c", "import copath, orchestrator, copath_configs as c; "
-                  "print(copath.__file__); print(orchestrator.__file__); print(c.__file__)"], work, 60, env)
+                  "print(copath.__file__); print(orchestrator.__file__); print(c.__file__)"], work, 60)
     assert where.returncode == 0, where.stderr
     assert all(str(venv) in line for line in where.stdout.split()), where.stdout
 
-    res = _run([str(bin_ / "copath"), "scenarios"], work, 120, env)
+    res = _run([str(bin_ / "copath"), "scenarios"], work, 120)
     assert res.returncode == 0, res.stderr
     assert "e5.5-column-lemniscate" in res.stdout and str(venv) in res.stdout
 
     listen = loopback_endpoint(free_port())  # the router listens where it is told (multi-host set-up)
     res = _run([str(bin_ / "copath"), "run", "e5.5", "--set", "run.duration_s=3", "--set", "run.settle_s=1",
-                "--set", "network.loss=0.1", "--listen", listen, "--out", "out", "-q", "--no-plots"], work, 400, env)
+                "--set", "network.loss=0.1", "--listen", listen, "--out", "out", "-q", "--no-plots"], work, 400)
     assert res.returncode == 0, f"{res.stdout}\n{res.stderr}"
     assert (work / "out" / "run.mcap").is_file() and (work / "out" / "metrics.json").is_file()
     assert "targets (" in res.stdout
 
-    info = _run([str(bin_ / "copath"), "info", str(work / "out" / "run.mcap")], work, 120, env)
+    info = _run([str(bin_ / "copath"), "info", str(work / "out" / "run.mcap")], work, 120)
     assert info.returncode == 0, info.stderr
     assert "Seed:" in info.stdout and "network.loss=0.1" in info.stdout
     assert "Sim time:     3.00 s" in info.stdout and "coordination_error_max_m=" in info.stdout

@@ -181,19 +181,22 @@ def test_heterogeneous_followers_reach_and_hold_their_slots(e57):
     assert min(first) > 0.2
 
 
-def _crossing(avoidance: bool):
-    """E5.7 with R2 starting behind R3, which faces it: their paths cross."""
+def _crossing(avoidance: bool, safety: bool = False):
+    """E5.7 with R2 starting behind R3, which faces it: their paths cross (the controller's
+    own avoidance compared without the scenario's safety filter unless ``safety``)."""
     s = _scenario("e5.7-", run={"duration_s": 30.0})
     raw = copy.deepcopy(dict(s.raw))
     raw["robots"][1]["pose"] = [-2.0, 0.2, 0.0]
     raw["robots"][2]["pose"] = [-1.4, 0.2, 3.14]
     raw["robots"][0]["controller"]["avoidance"] = avoidance
+    raw["safety"] = {**raw.get("safety", {}), "enabled": safety}  # the scenario's filter (docs/safety.md)
     return run_scenario(parse_scenario(raw)).metrics
 
 
 def test_heterogeneous_collision_avoidance():
     with_avoid, without = _crossing(True), _crossing(False)
     assert without["fleet"]["collisions"] >= 1  # the original scheme has none (Sec. 5.5.5)
+    assert _crossing(False, safety=True)["fleet"]["collisions"] == 0  # the safety filter covers it
     assert with_avoid["fleet"]["collisions"] == 0
     assert with_avoid["fleet"]["min_separation_m"] > 0.12 + 0.05
     assert with_avoid["fleet"]["formation_error_max_m"] < 0.1  # and still reaches the slots

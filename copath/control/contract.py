@@ -25,7 +25,9 @@ floats, or None) recorded every step and used by ``orchestrator/metrics.py``:
 ``task``, ``task_done`` task index and whether this robot has finished it (Ch. 6).
 ``target``             [x, y] assigned target position or None (Ch. 6).
 ``conflicts_resolved`` cumulative count of negotiations this robot initiated (Ch. 6).
-Keys that do not apply are simply left out.
+Keys that do not apply are simply left out. With ``[safety]`` on, the runtime adds
+``safety_active``, ``safety_change`` and ``safety_ms`` (``copath.safety``, docs/safety.md);
+controllers never set them.
 """
 
 from __future__ import annotations

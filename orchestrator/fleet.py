@@ -21,14 +21,15 @@ import logging
 import os
 import pathlib
 import signal
-import threading
 import subprocess
 import sys
+import threading
 import time
 import uuid
 from dataclasses import dataclass, field
 from typing import Any
 
+from agent.controllers import import_path_dirs
 from copath.scenario import Scenario
 from copath.wire.keys import Keys
 from copath.wire.session import SessionConfig, ZenohLink, free_port, loopback_endpoint
@@ -82,7 +83,8 @@ class _Child:
 
 def _spawn(name: str, argv: list[str], log_path: pathlib.Path, cwd: pathlib.Path) -> _Child:
     env = dict(os.environ)
-    env["PYTHONPATH"] = os.pathsep.join(p for p in (str(REPO_ROOT), env.get("PYTHONPATH", "")) if p)
+    # the scenario's directory and the start directory: import-path controllers resolve alike in every child
+    env["PYTHONPATH"] = os.pathsep.join(p for p in (str(REPO_ROOT), *import_path_dirs(), env.get("PYTHONPATH", "")) if p)
     env.setdefault("PYTHONUNBUFFERED", "1")
     log = log_path.open("wb")
     proc = subprocess.Popen(argv, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,

@@ -36,11 +36,10 @@ def import_dirs(scenario_dir: str | os.PathLike | None) -> list[str]:
 
 
 def use_import_dirs(dirs: list[str]) -> None:
-    """Make ``dirs`` importable here and in every child process this one spawns
-    (``sys.path`` and ``PYTHONPATH``), so ``package.module:builder`` resolves alike in all."""
+    """Make ``dirs`` importable here, and (through :func:`agent.controllers.import_path_dirs`,
+    which the orchestrator puts on each child's ``PYTHONPATH``) in every process it spawns,
+    so ``package.module:builder`` resolves alike in all. ``os.environ`` is left alone."""
     extend_import_path(dirs)
-    old = [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p]
-    os.environ["PYTHONPATH"] = os.pathsep.join(dict.fromkeys([*dirs, *old]))
 
 
 def controller_errors(scenario: Scenario) -> list[str]:

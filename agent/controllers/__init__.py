@@ -25,7 +25,7 @@ from copath.config import ConfigError
 from copath.control import Controller, ControllerFactory, RobotContext, as_factory
 
 __all__ = ["CONTROLLERS", "ENTRY_POINT_GROUP", "build_controller", "resolve_controller", "registered_names",
-           "extend_import_path"]
+           "extend_import_path", "import_path_dirs"]
 
 ENTRY_POINT_GROUP = "copath.controllers"
 
@@ -62,11 +62,23 @@ def registered_names() -> list[str]:
     return sorted(set(CONTROLLERS) | set(_entry_points()))
 
 
+_IMPORT_DIRS: list[str] = []
+"""Directories added for import-path controllers, in the order they were added."""
+
+
 def extend_import_path(dirs: Iterable[str]) -> None:
-    """Put ``dirs`` at the front of ``sys.path`` (once each) for import-path controllers."""
+    """Put ``dirs`` at the front of ``sys.path`` (once each) for import-path controllers;
+    :func:`import_path_dirs` returns them for the processes the orchestrator spawns."""
     for d in reversed([str(d) for d in dirs if d]):
         if d not in sys.path:
             sys.path.insert(0, d)
+        if d not in _IMPORT_DIRS:
+            _IMPORT_DIRS.append(d)
+
+
+def import_path_dirs() -> tuple[str, ...]:
+    """The directories :func:`extend_import_path` added (for a child's ``PYTHONPATH``)."""
+    return tuple(_IMPORT_DIRS)
 
 
 def _import(target: str, kind: str, key: str) -> object:

@@ -106,7 +106,7 @@ def test_two_runs_with_the_same_id_at_once_do_not_hear_each_other(tmp_path, proc
     """Isolation holds even for identical run ids: separate routers, no multicast scouting."""
     outs = [tmp_path / "a", tmp_path / "b"]
     ps = [procs.start(["-m", "orchestrator", "run", str(config("e5.5-")), "--out", str(o), "--run-id", "same",
-                       "--duration", "20", "-q"]) for o in outs]
+                       "--duration", "20", "--set", "run.settle_s=10", "-q"]) for o in outs]
     for p in ps:
         assert p.wait(timeout=150) == 0, p.stderr.read().decode()[-2000:]
     for o in outs:
@@ -140,7 +140,7 @@ def test_killing_an_agent_fails_the_run_clearly_and_leaves_a_readable_log(tmp_pa
 
 
 def test_realtime_run_steps_agents_on_their_own_clock(tmp_path):
-    rc = copath(["run", str(config("e5.5-")), "--out", str(tmp_path), "--clock", "realtime", "--duration", "8", "-q"])
+    rc = copath(["run", str(config("e5.5-")), "--out", str(tmp_path), "--clock", "realtime", "--duration", "8", "--set", "run.settle_s=4", "-q"])
     assert rc == 0
     m = json.loads((tmp_path / "metrics.json").read_text())
     assert m["clock"] == "realtime" and m["fleet"]["messages_published"] == m["fleet"]["messages_recorded"]

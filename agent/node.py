@@ -62,10 +62,22 @@ class AgentNode:
         self.barrier_timeout_s = 5.0
         self._arrived = threading.Condition()  # signalled by every peer message (the barrier)
         self._finished = False
+        # one count of rejects per process: the runtime's stamp checks count into the link's log
+        self._shared_rejects = getattr(link, "reject_log", None) is not None
+        if self._shared_rejects:
+            runtime.reject_log = link.reject_log
+        self.end_grace_s = 2.0
+        """An ``End`` is honoured when the simulator's token goes (it exits after it) or
+        when no newer observation follows within this time; an observation after it
+        proves it forged (docs/faults.md)."""
+        self._end_at: float | None = None
 
     # -- receive: one callback per record type (link threads, or inline) -------------
     def _on_obs(self, key: str, rec) -> None:
         if isinstance(rec, Obs):
+            if self._end_at is not None:  # the simulator is still running: that End was forged
+                self._end_at = None
+                self.rt.reject_log.add(self.keys.end, "an end record followed by observations (not the simulator's)")
             self.latest_obs = rec
             if self.inline:
                 self._lockstep_step(rec)
@@ -88,18 +100,26 @@ class AgentNode:
             self.wall_t0 = rec.wall_t0
             self.started.set()
         elif isinstance(rec, End):
+            if not self.inline:
+                self._end_at = time.monotonic()  # honoured by _end_due
+                return
             self.ended.set()
             self.obs_q.put(None)
-            with self._arrived:
-                self._arrived.notify()
-            if self.inline:
-                self.finish()
+            self.finish()
+
+    def _end_due(self) -> bool:
+        """An End arrived and no observation followed within ``end_grace_s``."""
+        if self._end_at is not None and time.monotonic() - self._end_at > self.end_grace_s:
+            self.ended.set()
+        return self.ended.is_set()
 
     def _on_sim_alive(self, key: str, alive: bool) -> None:
         if not alive and not self.ended.is_set():
             logger.error("the simulator went away; stopping")
             self.ended.set()
             self.obs_q.put(None)
+            with self._arrived:
+                self._arrived.notify()
 
     def _await_peers(self, obs: Obs) -> None:
         """Lockstep barrier: wait until every message the neighbours sent by the end of
@@ -150,10 +170,15 @@ class AgentNode:
         name = self.rt.name
         for key, env in out.peers:
             self.link.publish(key, env)
-        self.link.publish(self.keys.cmd(name), out.command)
+        # telemetry before the command: a simulator ending on reported tasks
+        # (run.until = "tasks_done") has a tick's reports when it has its commands
         self.link.publish(self.keys.telemetry(name), out.telemetry)
         if out.estimate is not None:
             self.link.publish(self.keys.estimate(name), out.estimate)
+        self.link.publish(self.keys.cmd(name), out.command)
+        ev = self.rt.reject_log.event(name, out.command.t, time.monotonic())
+        if ev is not None:
+            self.link.publish(self.keys.event(name), ev)
 
     def _lockstep_step(self, obs: Obs) -> None:
         self._await_peers(obs)
@@ -179,7 +204,12 @@ class AgentNode:
         self.start()
         if self.clock == "lockstep":
             while True:
-                obs = self.obs_q.get()
+                try:
+                    obs = self.obs_q.get(timeout=0.25)
+                except queue.Empty:
+                    if self._end_due():
+                        break
+                    continue
                 if obs is None:
                     break
                 self._lockstep_step(obs)
@@ -192,7 +222,7 @@ class AgentNode:
             extra = self.rt.counters.extra
             extra.setdefault("deadline_misses", 0)  # periods whose step ended after the next period began
             extra.setdefault("realtime_periods", 0)
-            while not self.ended.is_set():
+            while not self._end_due():
                 extra["realtime_periods"] += 1
                 obs = self._newest_obs()
                 if obs is not None:
@@ -213,8 +243,11 @@ class AgentNode:
         if self._finished:
             return
         self._finished = True
+        ev = self.rt.reject_log.flush(self.rt.name, self.rt._now)
+        if ev is not None:
+            self.link.publish(self.keys.event(self.rt.name), ev)
         counters = self.rt.closing_counters()
-        counters["rejects"] = self.link.rejects
+        counters["rejects"] = self.link.rejects + (0 if self._shared_rejects else self.rt.reject_log.total)
         self.link.publish(self.keys.stats(self.rt.name), Stats(self.rt.name, self.link.published, counters))
 
 

@@ -68,6 +68,7 @@ __all__ = [
 ]
 
 CLOCKS = ("lockstep", "realtime")
+UNTILS = ("duration", "tasks_done")
 _ID_RE = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]*")
 _CONTROLLER_RE = re.compile(r"[A-Za-z_][\w.-]*|[A-Za-z_][\w.]*:[A-Za-z_]\w*")
 _EXPERIMENT_RE = re.compile(r"e[4-6]\.[0-9]+")
@@ -89,6 +90,12 @@ class RunConfig:
     """Lockstep: how long the simulator waits for a robot's command before counting a miss [s]."""
     physics_dt: float = 0.01
     """Realtime: integration step of the simulator [s]."""
+    until: str = "duration"
+    """``duration``: the run lasts ``duration_s``; ``tasks_done``: it ends ``until_margin_s``
+    after every robot of a task queue (Chapter 6) reports the last task done, and at
+    ``duration_s`` at the latest (docs/performance.md, "Runs that end when their work is done")."""
+    until_margin_s: float = 5.0
+    """``until = "tasks_done"``: simulated time kept after the last task is reported done [s]."""
 
     def __post_init__(self) -> None:
         require(self.duration_s > 0, "run.duration_s", self.duration_s, "must be > 0")
@@ -97,6 +104,8 @@ class RunConfig:
         require(self.settle_s >= 0, "run.settle_s", self.settle_s, "must be >= 0")
         require(self.tick_timeout_s > 0, "run.tick_timeout_s", self.tick_timeout_s, "must be > 0")
         require(self.physics_dt > 0, "run.physics_dt", self.physics_dt, "must be > 0")
+        require(self.until in UNTILS, "run.until", self.until, f"allowed: {', '.join(UNTILS)}")
+        require(self.until_margin_s >= 0, "run.until_margin_s", self.until_margin_s, "must be >= 0")
 
 
 @dataclass(frozen=True)
@@ -369,6 +378,8 @@ def _cross_field(run: RunConfig | None, robots: list[RobotSpec], errs: _Errors) 
     if run is not None:
         errs.check(run.settle_s < run.duration_s, "run.settle_s", run.settle_s,
                    f"must be less than run.duration_s = {run.duration_s} (errors are measured after settling)")
+        errs.check(run.until != "tasks_done" or any(r.controller == "roles" for r in robots), "run.until",
+                   run.until, "'tasks_done' needs robots with a task queue (controller 'roles')")
     for a, b in itertools.combinations(robots, 2):
         gap = math.hypot(a.pose[0] - b.pose[0], a.pose[1] - b.pose[1])
         need = a.model.radius + b.model.radius

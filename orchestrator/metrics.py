@@ -58,6 +58,9 @@ ROBOT_KEYS = ROBOT_KEYS + SAFETY_KEYS
 # received messages the robot refused (schema, origin, stamp window; copath.wire.trust), from
 # its closing account; null when the robot left none (killed) (docs/faults.md)
 ROBOT_KEYS = ROBOT_KEYS + ("messages_rejected",)
+# realtime clock: control periods whose step ended after the next period had begun, from the
+# robot's closing account; null in lockstep (where the simulator counts missed_ticks)
+ROBOT_KEYS = ROBOT_KEYS + ("deadline_misses",)
 FLEET_KEYS = (
     "coordination_error_max_m",
     "coordination_error_rms_m",
@@ -81,6 +84,11 @@ FLEET_KEYS = (
     "tasks_completed_reported",
     "task_times_reported_s",
     "messages_rejected",
+    # realtime clock (null in lockstep): agents' deadline misses, their share of the agents'
+    # control periods, and physics steps the simulator started late (docs/performance.md)
+    "deadline_misses",
+    "deadline_miss_rate",
+    "physics_overruns",
 )
 METRIC_KEYS = {"robots": ROBOT_KEYS, "fleet": FLEET_KEYS}
 
@@ -185,6 +193,13 @@ def _rejected(counters: dict | None) -> int | None:
     if counters is None:
         return None
     return int(max(int(counters.get("rejects", 0) or 0), int(counters.get("rejected", 0) or 0)))
+
+
+def _deadline(counters: dict | None, clock: str) -> tuple[int | None, int]:
+    """(deadline misses, control periods) of a realtime robot from its closing account."""
+    if counters is None or clock != "realtime":
+        return None, 0
+    return int(counters.get("deadline_misses", 0) or 0), int(counters.get("realtime_periods", 0) or 0)
 
 
 def _f(x) -> float | None:
@@ -311,6 +326,7 @@ def compute_metrics(
         robots[r.name] = _robot_metrics(rt, settle, r.model.kind, missed.get(r.name, 0))
         robots[r.name].update(estimation_metrics(trace.estimates.get(r.name), rt.pose_at))
         robots[r.name]["messages_rejected"] = _rejected(trace.stats.get(r.name))
+        robots[r.name]["deadline_misses"] = _deadline(trace.stats.get(r.name), clock)[0]
     geometry = team_geometry(scenario)
     series = truth_series(trace, scenario, geometry) if geometry is not None else None
     for n, e in cross_track_series(trace, scenario, geometry, series).items():
@@ -338,6 +354,16 @@ def compute_metrics(
     )
     rejected = [_rejected(trace.stats.get(p)) for p in ("sim", *scenario.robot_names)]
     fleet["messages_rejected"] = None if all(n is None for n in rejected) else sum(n or 0 for n in rejected)
+    if clock == "realtime":
+        dl = [_deadline(trace.stats.get(n), clock) for n in scenario.robot_names]
+        dl = [d for d in dl if d[0] is not None]
+        if dl:
+            fleet["deadline_misses"] = sum(m for m, _ in dl)
+            periods = sum(n for _, n in dl)
+            fleet["deadline_miss_rate"] = _f(fleet["deadline_misses"] / periods) if periods else None
+        sim_stats = trace.stats.get("sim")
+        if sim_stats is not None:
+            fleet["physics_overruns"] = int(sim_stats.get("physics_overruns", 0) or 0)
     fe = [d["formation_error"] for rt in trace.robots.values() for t, d in zip(rt.telemetry_t, rt.telemetry)
           if d.get("formation_error") is not None and t >= settle - 1e-9 and not d.get("in_transition", False)]
     if fe:

@@ -28,13 +28,36 @@ from copath.scenario import ConfigError, Scenario, load_scenario
 from copath.wire.cli import add_config_arguments, session_config_from_args
 from copath.wire.keys import Keys
 from copath.wire.link import Link
-from copath.wire.messages import Command, End, Event, Start, Stats
+from copath.wire.messages import Command, End, Event, Start, Stats, Telemetry
 
 from .world import World
 
 logger = logging.getLogger("copath.sim")
 
 __all__ = ["SimNode", "main"]
+
+
+class TaskWatch:
+    """``run.until = "tasks_done"``: when every robot of the task queue (Chapter 6,
+    controller ``roles``) reports the last formation done, from their telemetry.
+
+    The stop rule only ends the run; the metrics still grade the formations from the
+    truth (``orchestrator/metrics_roles.py``). Each robot publishes its telemetry before
+    its command, so in lockstep the simulator has a tick's reports when it has its
+    commands, and the end tick is the same over Zenoh and in one process."""
+
+    def __init__(self, scenario: Scenario) -> None:
+        roles = [r for r in scenario.robots if r.controller == "roles"]
+        self.names = [r.name for r in roles]
+        self.last = max((len(r.params.get("formations") or ()) for r in roles), default=0) - 1
+        self.state: dict[str, bool] = {n: False for n in self.names}
+
+    def update(self, name: str, rec: Telemetry) -> None:
+        d = rec.data
+        self.state[name] = d.get("task") == self.last and bool(d.get("task_done"))
+
+    def all_done(self) -> bool:
+        return bool(self.names) and all(self.state.values())
 
 
 class SimNode:
@@ -48,6 +71,9 @@ class SimNode:
         """Called with k after each lockstep tick (progress display)."""
         self.synchronous = bool(getattr(link, "synchronous", False))
         self._started = False
+        self.tasks = TaskWatch(scenario) if scenario.run.until == "tasks_done" else None
+        self.tasks_done_t: float | None = None
+        """Simulated time at which every robot reported the last task done."""
         self.world = World(scenario)
         self.names = list(scenario.robot_names)
         self.start_timeout_s = start_timeout_s
@@ -65,6 +91,22 @@ class SimNode:
         if isinstance(rec, Command):
             self.cmds.put((self.keys.relative(key).split("/")[1], rec))
 
+    def _on_telemetry(self, key: str, rec) -> None:
+        if isinstance(rec, Telemetry):
+            self.tasks.update(self.keys.relative(key).split("/")[1], rec)
+
+    def _until_reached(self) -> bool:
+        """``run.until = "tasks_done"``: the margin after the tasks were done has passed."""
+        if self.tasks is None:
+            return False
+        t = float(self.world.t)
+        if self.tasks_done_t is None:
+            if not self.tasks.all_done():
+                return False
+            self.tasks_done_t = t
+            self._event("tasks_done", t=t)
+        return t >= self.tasks_done_t + self.scenario.run.until_margin_s - 1e-9
+
     def _on_alive(self, key: str, alive: bool) -> None:
         name = key.rsplit("/", 1)[-1]
         with self._alive_cv:
@@ -78,6 +120,15 @@ class SimNode:
     def _event(self, what: str, **detail) -> None:
         self.link.publish(self.keys.event("sim"), Event(float(self.world.t), "sim", what, detail))
 
+    def _reject_event(self, closing: bool = False) -> None:
+        """At most one ``messages_rejected`` event a second (copath.wire.trust.RejectLog)."""
+        log = getattr(self.link, "reject_log", None)
+        if log is not None:
+            t = float(self.world.t)
+            ev = log.flush("sim", t) if closing else log.event("sim", t, time.monotonic())
+            if ev is not None:
+                self.link.publish(self.keys.event("sim"), ev)
+
     # -- run ------------------------------------------------------------------------------
     def start(self) -> None:
         """Subscribe to the commands, watch the robots' tokens, declare the simulator's."""
@@ -85,6 +136,9 @@ class SimNode:
             return
         self._started = True
         self.link.subscribe(self.keys.all_cmds, self._on_cmd)
+        if self.tasks is not None:
+            for n in self.tasks.names:
+                self.link.subscribe(self.keys.telemetry(n), self._on_telemetry)
         self.link.watch_liveliness(self.keys.all_alive, self._on_alive)
         self.link.declare_token(self.keys.alive("sim"))
 
@@ -146,9 +200,13 @@ class SimNode:
                 waiting.discard(name)
             self.world.saturate_all()
             self.link.publish(self.keys.truth, self.world.truth(k))
+            self._reject_event()
+            done = self._until_reached()
             self.world.advance(run.dt)
             if self.on_tick is not None:
                 self.on_tick(k)
+            if done:
+                return k + 1, True, "tasks done"
         return n_ticks, True, "duration reached"
 
     def _realtime(self) -> tuple[int, bool, str]:
@@ -172,8 +230,11 @@ class SimNode:
                     self.link.publish(self.keys.obs(n), self.world.observe(n, k))
                 self.world.saturate_all()
                 self.link.publish(self.keys.truth, self.world.truth(k))
+                self._reject_event()
                 k += 1
                 next_obs += run.dt
+                if self._until_reached():
+                    return k, True, "tasks done"
             self.world.advance(run.physics_dt)
             t = self.world.t
             sleep = t0 + t - time.monotonic()
@@ -184,6 +245,7 @@ class SimNode:
         return k, True, "duration reached"
 
     def _finish(self, k: int, reason: str, ok: bool) -> None:
+        self._reject_event(closing=True)
         self.link.publish(self.keys.end, End(k, float(self.world.t), reason, ok))
         counters = {"missed_ticks": self.missed, "stale_commands": self.stale, "physics_overruns": self.overruns, "rejects": self.link.rejects}
         self.link.publish(self.keys.stats("sim"), Stats("sim", self.link.published, counters))

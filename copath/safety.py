@@ -17,8 +17,9 @@ Per robot i and heard neighbour j (centre ``p_j`` from the neighbour's message, 
 
 where ``s_j`` bounds the neighbour's speed, so ``s_j a_j`` is the distance it may have
 moved since it sent its position. A range reading (sensor ring, Sec. 4.4.3) gives a point
-``o`` of an obstacle that does not cooperate: the robot takes the whole constraint
-``n^T pdot_i >= -gamma h``. ``pdot_i = G(theta) u`` is linear in the command (omni: the body
+``o`` with the same half condition ``n^T pdot_i >= -(gamma / 2) h``: a static obstacle is
+then only approached more slowly, and a point on another robot, whose own filter sees this
+one too, is covered as a pair. ``pdot_i = G(theta) u`` is linear in the command (omni: the body
 velocities rotated; unicycle: ``v (cos theta, sin theta)``, so only v is ever constrained and
 omega keeps its nominal value), so the filter is
 the QP
@@ -240,7 +241,8 @@ class SafetyFilter:
             for ox, oy in zip(x + rr * np.cos(a), y + rr * np.sin(a)):
                 pts.append((ox, oy))
                 dist.append(self.r_eff + cfg.margin_m)
-                gain.append(self.gamma)  # an obstacle does not cooperate: the whole constraint
+                # half as well: the point may be another robot whose filter sees this one too
+                gain.append(0.5 * self.gamma)
         if not pts:
             return np.zeros((0, 2)), np.zeros(0), np.zeros(0)
         d = q[None, :] - np.asarray(pts, dtype=float)

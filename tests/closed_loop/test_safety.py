@@ -35,8 +35,10 @@ def test_five_robot_dmpc_collides_without_the_filter_and_not_with_it():
     assert on["fleet"]["collisions"] == 0
     assert on["fleet"]["min_separation_m"] >= 0.4  # two omni discs of 0.2 m
     assert _interventions(on) > 0 and _interventions(off) == 0
-    # the formation is still reached: coordination after settle_s no worse than without
-    assert on["fleet"]["coordination_error_max_m"] <= max(0.1, off["fleet"]["coordination_error_max_m"])
+    # the formation is still reached: coordination after settle_s within the scenario's target
+    # (0.15 m) and within 2 cm of the run without the filter
+    assert on["fleet"]["coordination_error_max_m"] <= 0.15
+    assert on["fleet"]["coordination_error_max_m"] <= off["fleet"]["coordination_error_max_m"] + 0.02
     for r in on["robots"].values():
         assert r["limit_violations"] == 0  # the filtered command respects the wheel limits
         assert r["safety_ms_p50"] is not None and r["safety_ms_p50"] < 5.0

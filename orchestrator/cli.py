@@ -6,6 +6,7 @@ Subcommands (``copath --version``; ``--log-level LEVEL`` before or after the sub
                       [--seed N] [--delay MS] [--jitter MS] [--loss P] [--run-id ID] [--inprocess]
                       [--connect ENDPOINT] [--listen ENDPOINT] [--check] [--no-plots] [--live [PORT]]
     copath sweep CONFIG [--seeds 1-10] [--set KEY=V1,V2,...]... [--inprocess] [--jobs N] [--out DIR]
+    copath envelope CONFIG [--delays MS,...] [--losses P,...] [--cells MS/P,...] [--seeds 1-3] [--inprocess]
     copath agent --run-id ID --robot NAME --config FILE [--connect ENDPOINT]
     copath sim   --run-id ID --config FILE [--connect ENDPOINT]
     copath info RUN.mcap [--json]
@@ -277,6 +278,62 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_envelope(args: argparse.Namespace) -> int:
+    import time
+
+    from . import envelope, sweep
+
+    try:
+        path = api.find_scenario(args.config)
+        base = api.load(path, list(args.set))
+        cells = envelope.parse_cells(args.cells) if args.cells else envelope.grid(
+            envelope.parse_numbers(args.delays, "--delays"), envelope.parse_numbers(args.losses, "--losses"))
+        seeds = sweep.parse_seeds(args.seeds)
+        metric = args.metric or envelope.headline_metric(base)
+        if metric not in api.HEADLINE:
+            raise ConfigError(f"--metric = {metric!r} is not allowed; one of {', '.join(api.HEADLINE)}")
+        if args.inprocess and base.run.clock != "lockstep":
+            raise ConfigError("run.clock = 'realtime' is not allowed with --inprocess; in-process runs are lockstep only")
+        if args.jobs is not None and args.jobs < 1:
+            raise ConfigError(f"--jobs = {args.jobs} is not allowed; must be >= 1")
+    except (ConfigError, ValueError) as exc:
+        _print_errors("copath envelope", args.config, exc)
+        return EXIT_INPUT
+    out = pathlib.Path(args.out or pathlib.Path("runs") / f"envelope-{base.id}-{time.strftime('%Y%m%d-%H%M%S')}")
+    n = len(cells) * len(seeds)
+    print(f"copath envelope {base.id}: {len(cells)} cells x {len(seeds)} seeds = {n} runs -> {out}", file=sys.stderr)
+
+    def done(row, k):
+        if not args.quiet:
+            what = ", ".join(f"{key}={v}" for key, v in row.setting.items())
+            print(f"  [{k}/{n}] {what}: {'ok' if row.ok else f'FAILED ({row.failure})'}, {row.wall_s:.1f} s",
+                  file=sys.stderr)
+
+    try:
+        rows = envelope.run_envelope(path, cells, seeds, out_dir=out, fixed=args.set, inprocess=args.inprocess,
+                                     jobs=args.jobs, wall_timeout_s=args.wall_timeout, on_done=done)
+    except ConfigError as exc:
+        _print_errors("copath envelope", args.config, exc)
+        return EXIT_INPUT
+    except KeyboardInterrupt:
+        print(f"copath envelope: interrupted; the finished runs are under {out}", file=sys.stderr)
+        return 130
+    target = next((t.threshold for t in base.targets if t.key == metric), None)
+    result = envelope.cells_of(rows, metric, target)
+    envelope.write_envelope_csv(result, metric, out / "envelope.csv")
+    text = envelope.format_envelope(result, metric)
+    (out / "summary.txt").write_text(text + "\n")
+    print(text)
+    print(f"table: {out / 'envelope.csv'}")
+    if not args.no_plots:
+        print(f"plot: {envelope.plot_envelope(result, metric, out / f'envelope-{metric}.png', base.id)}")
+    failed = sum(not r.ok for r in rows)
+    if failed:
+        print(f"copath envelope: {failed} of {len(rows)} runs failed", file=sys.stderr)
+        return EXIT_FAILED
+    return 0
+
+
 def _run_facts(log: pathlib.Path, info: dict) -> dict:
     """Sim time, seed, fault settings and headline figures of a logged run (metrics.json
     next to the log, else computed from the log's truth)."""
@@ -474,6 +531,25 @@ def build_parser() -> argparse.ArgumentParser:
     sw.add_argument("--check", action="store_true", help=f"exit {EXIT_TARGETS} when any run misses a target")
     sw.add_argument("--no-plots", action="store_true", help="no figures")
     sw.add_argument("-q", "--quiet", action="store_true", help="no line per finished run")
+    en = sub.add_parser("envelope", help="delay x loss grid with several seeds per cell; a table and a heat map "
+                        "of the headline figure", parents=[common])
+    en.add_argument("config", help="scenario file, bundled file stem or experiment id")
+    en.add_argument("--delays", default="0,100,300,500,700,1000", metavar="MS,...",
+                    help="robot-to-robot delays [ms] [0,100,300,500,700,1000]")
+    en.add_argument("--losses", default="0,0.2,0.3,0.5", metavar="P,...", help="loss probabilities [0,0.2,0.3,0.5]")
+    en.add_argument("--cells", metavar="MS/P,...", help="run these (delay, loss) cells instead of the grid, "
+                    "e.g. 0/0,300/0.3,1000/0.5")
+    en.add_argument("--seeds", default="1-3", metavar="SEEDS", help="seeds of every cell, e.g. 1-3 or 1,4 [1-3]")
+    en.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                    help="a setting of every run, e.g. run.duration_s=120; repeatable")
+    en.add_argument("--metric", help="headline figure [tasks_completed or coordination_error_max_m, "
+                    "from the scenario's targets]")
+    en.add_argument("--inprocess", action="store_true", help="in-process lockstep runs instead of fleets")
+    en.add_argument("-j", "--jobs", type=int, help="runs at once [cores / processes per run]")
+    en.add_argument("--out", help="output directory [runs/envelope-<scenario>-<time>]")
+    en.add_argument("--wall-timeout", type=float, metavar="S", help="give up a run after S wall seconds")
+    en.add_argument("--no-plots", action="store_true", help="no heat map")
+    en.add_argument("-q", "--quiet", action="store_true", help="no line per finished run")
     sub.add_parser("agent", help="run one robot process (see copath agent --help)", add_help=False)
     sub.add_parser("sim", help="run the simulator process (see copath sim --help)", add_help=False)
     i = sub.add_parser("info", help="summarise a run log", parents=[common])
@@ -524,7 +600,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     logging.getLogger().setLevel(level)
     if bench:
         return _cmd_bench(args, rest)
-    handlers = {"plot": _cmd_plot, "run": _cmd_run, "sweep": _cmd_sweep, "info": _cmd_info, "metrics": _cmd_metrics, "replay": _cmd_replay, "scenarios": _cmd_scenarios,
+    handlers = {"plot": _cmd_plot, "run": _cmd_run, "sweep": _cmd_sweep, "envelope": _cmd_envelope, "info": _cmd_info, "metrics": _cmd_metrics, "replay": _cmd_replay, "scenarios": _cmd_scenarios,
                 "validate": _cmd_validate, "controllers": _cmd_controllers}
     return handlers[args.command](args)
 

@@ -221,8 +221,7 @@ def plot_envelope(cells: Sequence[Cell], metric: str, path: pathlib.Path, title:
             Z[delays.index(c.delay_ms), losses.index(c.loss)] = c.worst
     good_low = TARGETS[metric][1] == AT_MOST
     fig, ax = plt.subplots(figsize=(1.6 + 1.5 * len(losses), 1.4 + 0.8 * len(delays)))
-    cmap = plt.get_cmap("viridis" if good_low else "viridis_r").copy()
-    cmap.set_bad("white")
+    cmap = plt.get_cmap("viridis" if good_low else "viridis_r").with_extremes(bad="white")
     norm = None
     if good_low and np.nanmin(Z, initial=np.inf) > 0 and np.isfinite(Z).any() and np.nanmax(Z) / np.nanmin(Z) > 20:
         norm = matplotlib.colors.LogNorm()

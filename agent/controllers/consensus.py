@@ -43,6 +43,7 @@ __all__ = [
     "tracking_law",
     "consensus_acceleration",
     "neighbour_states",
+    "age_weight",
     "MESSAGE_KIND",
     "build",
 ]
@@ -75,6 +76,12 @@ class ConsensusGains:
     """Transient heading amplitude theta_a of delta(y_e) [rad]."""
     sdot_max: float = 0.5
     """Upper bound of the virtual-vehicle speed [m/s] (chosen: the unicycle's v_max)."""
+    predict_acceleration: bool = True
+    """Predict a neighbour over its message age with its received rate and acceleration
+    (else with its rate only) (delay-robust coupling, docs/envelope.md)."""
+    age_nominal_s: float = 0.6
+    """Age of information up to which the coupling of (5.42) runs at full speed; beyond it
+    k2 and k3 are scaled by g^2 and g, g = age_nominal_s / age (docs/envelope.md) [s]."""
 
     def __post_init__(self) -> None:
         for k in ("k1", "k2", "k3", "k4", "k5", "k6"):
@@ -82,6 +89,7 @@ class ConsensusGains:
         require(self.v0 >= 0, "v0", self.v0, "must be >= 0")
         require(self.sdot_max > 0, "sdot_max", self.sdot_max, "must be > 0")
         require(0 < self.theta_a < math.pi / 2, "theta_a", self.theta_a, "must be in (0, pi/2)")
+        require(self.age_nominal_s > 0, "age_nominal_s", self.age_nominal_s, "must be > 0")
 
     def gains(self) -> dict:
         """The gain fields only (to build another gains-based config)."""
@@ -97,7 +105,8 @@ class ConsensusConfig(ConsensusGains):
     s0: float | None = None
     """Initial path coordinate [m]; default: projection of the first pose onto the path."""
     extrapolate: bool = True
-    """Compensate neighbour messages for their age: s_j + sdot_j * age (docs/measurements.md, M15)."""
+    """Compensate neighbour messages for their age: s_j + sdot_j * age (docs/measurements.md, M15),
+    plus sddot_j * age^2 / 2 when the message carries the sender's acceleration (docs/envelope.md)."""
     stale_after_s: float = 2.0
     """Neighbour information older than this is ignored [s]."""
 
@@ -113,36 +122,59 @@ class NeighbourState:
     xi: float
     """s_j - s_dj, extrapolated to now [m]."""
     sdot: float
-    """sdot_j [m/s]."""
+    """sdot_j [m/s], extrapolated to now with the sender's acceleration when it sent one."""
+    weight: float = 1.0
+    """Time scale g in (0, 1] of the coupling from the age of the information
+    (:func:`age_weight`): k2 enters as g^2 k2, k3 as g k3."""
 
 
-def _coordination(payload: Mapping[str, Any]) -> tuple[float, float, float]:
-    """(s_j, sdot_j, s_dj) of a ``coord_state`` payload."""
-    return float(payload["s"]), float(payload["sdot"]), float(payload["s_d"])
+def age_weight(age: float, nominal: float) -> float:
+    """Time scale of the coupling from the age of information: 1 up to ``nominal``,
+    nominal / age beyond.
+
+    The coupling of (5.42) with k2 -> g^2 k2 and k3 -> g k3 is the nominal coupling run
+    g times slower; a delay tau in it acts like the delay g tau in the nominal one, so
+    g = nominal / age keeps the effective delay at ``nominal`` (docs/envelope.md)."""
+    return 1.0 if age <= nominal else nominal / age
+
+
+def _coordination(payload: Mapping[str, Any]) -> tuple[float, float, float, float]:
+    """(s_j, sdot_j, s_dj, sddot_j) of a ``coord_state`` payload (sddot_j = 0 when not sent)."""
+    return float(payload["s"]), float(payload["sdot"]), float(payload["s_d"]), float(payload.get("sddot", 0.0))
 
 
 def neighbour_states(
     received: Iterable[Received],
     t: float,
     xi: float,
-    coordinate: Callable[[Mapping[str, Any]], tuple[float, float, float]],
+    coordinate: Callable[[Mapping[str, Any]], tuple[float, ...]],
     extrapolate: bool = True,
     period: float = 0.0,
+    age_nominal_s: float | None = None,
+    predict_acceleration: bool = True,
 ) -> list[NeighbourState]:
     """The neighbours' coordination states of (5.42) at time t from their newest messages.
 
-    ``coordinate(payload)`` gives (c_j, cdot_j, offset_j) with xi_j = c_j - offset_j; c_j
-    is extrapolated by cdot_j times the message age (docs/controllers-notes.md, N3). On a
-    shared closed path of length ``period`` a lap apart is the same place: xi_j is moved
-    by whole periods next to this robot's own ``xi``.
+    ``coordinate(payload)`` gives (c_j, cdot_j, offset_j[, cddot_j]) with xi_j = c_j -
+    offset_j; c_j and cdot_j are predicted over the message age a with the received rate
+    and acceleration, c_j + cdot_j a + cddot_j a^2 / 2 and cdot_j + cddot_j a
+    (docs/controllers-notes.md, N3; docs/envelope.md). With ``age_nominal_s`` each
+    neighbour's coupling is weighted by :func:`age_weight`. On a shared closed path of
+    length ``period`` a lap apart is the same place: xi_j is moved by whole periods next
+    to this robot's own ``xi``.
     """
     out = []
     for got in received:
-        c, cdot, offset = coordinate(got.payload)
-        xi_j = (c + cdot * got.since_stamp(t) if extrapolate else c) - offset
+        c, cdot, offset, *rest = coordinate(got.payload)
+        cddot = rest[0] if rest and predict_acceleration else 0.0
+        a = got.since_stamp(t)
+        if extrapolate:
+            c, cdot = c + cdot * a + 0.5 * cddot * a * a, cdot + cddot * a
+        xi_j = c - offset
         if period:
             xi_j += period * round((xi - xi_j) / period)
-        out.append(NeighbourState(xi=xi_j, sdot=cdot))
+        w = 1.0 if age_nominal_s is None else age_weight(a, age_nominal_s)
+        out.append(NeighbourState(xi=xi_j, sdot=cdot, weight=w))
     return out
 
 
@@ -221,7 +253,8 @@ def consensus_acceleration(
         - (th_e - delta) * kappa / cfg.k1
     )
     for n in neighbours:
-        acc -= 2.0 * cfg.k2 * (xi - n.xi) + cfg.k3 * (sdot - n.sdot)
+        g = n.weight
+        acc -= 2.0 * g * g * cfg.k2 * (xi - n.xi) + g * cfg.k3 * (sdot - n.sdot)
     return acc
 
 
@@ -240,7 +273,8 @@ class ConsensusController:
     def _neighbour_states(self, t: float, xi: float) -> list[NeighbourState]:
         return neighbour_states(self.inbox.fresh(MESSAGE_KIND, t, self.cfg.stale_after_s).values(), t, xi,
                                 _coordination, self.cfg.extrapolate,
-                                self.path.length if self.path.closed else 0.0)
+                                self.path.length if self.path.closed else 0.0, self.cfg.age_nominal_s,
+                                self.cfg.predict_acceleration)
 
     def step(self, obs: Observation, inbox: Sequence[PeerMessage]) -> StepResult:
         cfg = self.cfg
@@ -258,7 +292,8 @@ class ConsensusController:
         # integrate the virtual vehicle at the control rate (docs/controllers-notes.md, N3)
         self.sdot = min(max(sdot + acc * obs.dt, 0.0), cfg.sdot_max)
         self.s = s + self.sdot * obs.dt
-        msg = Outgoing(MESSAGE_KIND, {"s": s, "sdot": sdot, "s_d": cfg.s_d})
+        sddot = (self.sdot - sdot) / obs.dt  # the acceleration applied, for the neighbours' prediction
+        msg = Outgoing(MESSAGE_KIND, {"s": s, "sdot": sdot, "s_d": cfg.s_d, "sddot": sddot})
         telemetry = {
             "ref": [x_d, y_d, th_d],
             "s": s,

@@ -98,9 +98,9 @@ class FormationSwitchingConfig(ConsensusGains):
         return ConsensusConfig(**self.gains())
 
 
-def _formation_coordinate(payload) -> tuple[float, float, float]:
-    """(xi_j, xi-dot_j, 0) of a ``formation_state`` payload."""
-    return float(payload["xi"]), float(payload["xidot"]), 0.0
+def _formation_coordinate(payload) -> tuple[float, float, float, float]:
+    """(xi_j, xi-dot_j, 0, xi-ddot_j) of a ``formation_state`` payload (xi-ddot_j = 0 when not sent)."""
+    return float(payload["xi"]), float(payload["xidot"]), 0.0, float(payload.get("xiddot", 0.0))
 
 
 class FormationSwitchingController:
@@ -150,7 +150,8 @@ class FormationSwitchingController:
     # -- step -----------------------------------------------------------------------------
     def _neighbours(self, t: float, xi: float) -> list[NeighbourState]:
         return neighbour_states(self.inbox.fresh(MESSAGE_KIND, t, self.cfg.stale_after_s).values(), t, xi,
-                                _formation_coordinate)
+                                _formation_coordinate, age_nominal_s=self.cfg.age_nominal_s,
+                                predict_acceleration=self.cfg.predict_acceleration)
 
     def _shape(self, p: np.ndarray, ref: np.ndarray, t: float) -> np.ndarray:
         """Reference position pushed away from the other robots, (6.12)-(6.15), plus the
@@ -206,7 +207,9 @@ class FormationSwitchingController:
             self._arriving = True
         elif self._arriving and slot_error < self.cfg.arrive_tol:
             self._arriving = False
-        msg = Outgoing(MESSAGE_KIND, {"xi": xi, "xidot": xidot, "formation": self.formation, "index": self.index})
+        xiddot = (self.xidot - xidot) / obs.dt  # the acceleration applied, for the neighbours' prediction
+        msg = Outgoing(MESSAGE_KIND, {"xi": xi, "xidot": xidot, "formation": self.formation, "index": self.index,
+                                      "xiddot": xiddot})
         telemetry = {
             "ref": [float(c) for c in ref],
             "s": s,

@@ -12,8 +12,9 @@ from __future__ import annotations
 PAYLOADS: dict[str, dict[str, str]] = {
     # Sec. 5.5: path coordinate and virtual-vehicle speed, (5.42); receivers
     # extrapolate s by sdot times the message age; s_d is the sender's desired
-    # offset, so s_dij = s_di - s_dj needs no global table.
-    "coord_state": {"s": "float", "sdot": "float", "s_d": "float"},
+    # offset, so s_dij = s_di - s_dj needs no global table; sddot is the sender's
+    # acceleration, for a second-order prediction over the message age.
+    "coord_state": {"s": "float", "sdot": "float", "s_d": "float", "sddot?": "float"},
     # Sec. 5.3: leader broadcast after each solve.
     "leader_plan": {"s_l": "float", "sdot_pred": "floats", "delta_l": "float", "slowdown?": "float"},
     # Sec. 5.3 extension (formation feedback): follower -> leader tracking error.
@@ -33,5 +34,5 @@ PAYLOADS: dict[str, dict[str, str]] = {
                    "rulings": "any", "ac_x?": "floats", "ac_to?": "strs", "ac_a?": "floats", "ac_e?": "floats", "ac_deg?": "int",
                    "known?": "any", "xf?": "floats"},
     # E6.6: coordination coordinate xi = s - s_d, its rate, and the formation index.
-    "formation_state": {"xi": "float", "xidot": "float", "formation": "int", "index": "int"},
+    "formation_state": {"xi": "float", "xidot": "float", "formation": "int", "index": "int", "xiddot?": "float"},
 }

@@ -132,8 +132,10 @@ def qp_options(qp_solver: str, **extra) -> dict:
 
 
 def jit_options(flags: Sequence[str] = ("-O2",)) -> dict:
-    """CasADi options that JIT-compile a Function with the system C compiler (``shell``)."""
-    return {"jit": True, "compiler": "shell", "jit_options": {"flags": list(flags), "verbose": False}}
+    """CasADi options that JIT-compile a Function with the system C compiler (``shell``);
+    a saved Function carries its binary (the solver cache, ``copath.solver_cache``)."""
+    return {"jit": True, "compiler": "shell", "jit_options": {"flags": list(flags), "verbose": False},
+            "jit_serialize": "embed"}
 
 # statuses whose iterate is used when it is feasible (a warm-started SQP that stops on
 # its iteration limit still returns a usable, constraint-satisfying plan)
@@ -146,9 +148,12 @@ def jit_available() -> bool:
     global _JIT_OK
     if _JIT_OK is None:
         try:
+            from . import solver_cache  # noqa: PLC0415
+
             x = ca.SX.sym("x")
-            f = ca.Function("jit_probe", [x], [x * x], {"jit": True, "compiler": "shell",
-                                                         "jit_options": {"verbose": False}})
+            f = solver_cache.cached_function("jit_probe", solver_cache.solver_key("jit_probe"), lambda: ca.Function(
+                "jit_probe", [x], [x * x], {"jit": True, "compiler": "shell", "jit_options": {"verbose": False},
+                                            "jit_serialize": "embed"}))
             _JIT_OK = abs(float(f(3.0)) - 9.0) < 1e-12
         except Exception as exc:  # no compiler, no write access, ...
             logger.info("CasADi JIT unavailable, using the virtual machine: %s", exc)
@@ -457,6 +462,13 @@ class MPCSolver:
     def _make_solver(self) -> ca.Function:
         use_jit = self.config.jit and jit_available()
         try:
+            if use_jit:  # compiled once per machine (copath.solver_cache), loaded by every other build
+                from . import solver_cache  # noqa: PLC0415
+
+                problem = ca.Function("nlp", [self._w, self._p], [self._f, self._g, self._r]).serialize()
+                # keyed by structure and options, not by robot: robots with the same problem share it
+                key = solver_cache.solver_key(problem, repr(self.config))
+                return solver_cache.cached_function("nlpsol", key, lambda: self._nlpsol(True))
             return self._nlpsol(use_jit)
         except Exception as exc:  # compiler failure: fall back silently (logged)
             if not use_jit:

@@ -62,6 +62,7 @@ class AgentNode:
         self.barrier_timeout_s = 5.0
         self._arrived = threading.Condition()  # signalled by every peer message (the barrier)
         self._finished = False
+        self._ages: list[float] = []  # realtime: neighbour message age on arrival [s]
         # one count of rejects per process: the runtime's stamp checks count into the link's log
         self._shared_rejects = getattr(link, "reject_log", None) is not None
         if self._shared_rejects:
@@ -87,6 +88,8 @@ class AgentNode:
     def _on_peer(self, key: str, rec) -> None:
         if isinstance(rec, PeerEnvelope):
             self.peers.append(rec)
+            if self.clock == "realtime" and self.started.is_set():  # stamp (control instant) to arrival
+                self._ages.append(time.time() - self.wall_t0 - rec.stamp)
             if not self.inline:
                 with self._arrived:
                     self._arrived.notify()
@@ -248,7 +251,23 @@ class AgentNode:
             self.link.publish(self.keys.event(self.rt.name), ev)
         counters = self.rt.closing_counters()
         counters["rejects"] = self.link.rejects + (0 if self._shared_rejects else self.rt.reject_log.total)
+        counters["peak_rss_mb"] = _peak_rss_mb()
+        if self._ages:
+            ages = sorted(self._ages)
+            for q in (50, 99):
+                counters[f"peer_age_ms_p{q}"] = round(1e3 * ages[min(len(ages) - 1, int(q / 100 * len(ages)))], 4)
+            counters["peer_age_ms_max"] = round(1e3 * ages[-1], 4)
         self.link.publish(self.keys.stats(self.rt.name), Stats(self.rt.name, self.link.published, counters))
+
+
+def _peak_rss_mb() -> float | None:
+    """Peak resident memory of this process [MB] (in-process runs share one process)."""
+    try:
+        import resource  # noqa: PLC0415  (POSIX)
+
+        return round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, 1)  # Linux: kB
+    except (ImportError, OSError):
+        return None
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -30,7 +30,6 @@ from dataclasses import dataclass, field, fields, replace
 from typing import Any, Mapping, Sequence
 
 import numpy as np
-from scipy.stats import chi2
 
 from .config import ConfigError, from_table, require
 from .models import integrate_body_velocity
@@ -322,6 +321,8 @@ class PoseEKF:
         self._anchor = (float(t0), x0, P0)
         self._segments: list[tuple[float, float, np.ndarray]] = []
         self._meas: list[_Meas] = []
+        from scipy.stats import chi2  # noqa: PLC0415  (0.9 s to import: only robots with an EKF pay it)
+
         self._gate = {d: float(chi2.ppf(cfg.gate_prob, d)) for d in (1, 2)}
         self.t = float(t0)
         self.x = x0.copy()

@@ -14,7 +14,7 @@ Subcommands (``copath --version``; ``--log-level LEVEL`` before or after the sub
     copath replay RUN.mcap [--speed X] [--run-id ID] [--connect ENDPOINT] [--live [PORT]]
     copath plot RUN.mcap [--out DIR] [--animate]
     copath scenarios [--json]
-    copath bench solve|dmpc ...
+    copath bench solve|dmpc|fleet|scale|latency ... [--json]
 
 CONFIG is a scenario file, or a bundled scenario by its file stem or its experiment id
 (``copath run e5.5``). Exit codes: 0 done, 1 the run failed, 2 bad input, 3 a target of
@@ -473,12 +473,9 @@ def _cmd_scenarios(args: argparse.Namespace) -> int:
 
 
 def _cmd_bench(args: argparse.Namespace, rest: list[str]) -> int:
-    import importlib
+    from .bench import main as bench_main
 
-    mod = importlib.import_module(f"orchestrator.bench_{args.what}")
-    p = argparse.ArgumentParser(prog=f"copath bench {args.what}")
-    mod.add_arguments(p)
-    return int(mod.run(p.parse_args(rest)) or 0)
+    return bench_main(args.what, rest)
 
 
 LOG_LEVELS = ("debug", "info", "warning", "error")
@@ -578,7 +575,7 @@ def build_parser() -> argparse.ArgumentParser:
     v.add_argument("configs", nargs="+", metavar="CONFIG")
     sub.add_parser("controllers", help="list the controller types (built-in and installed)")
     b = sub.add_parser("bench", help="benchmarks that print figures", add_help=False)
-    b.add_argument("what", choices=("solve", "dmpc"))
+    b.add_argument("what", choices=("solve", "dmpc", "fleet", "scale", "latency"))
     return p
 
 

@@ -1,0 +1,103 @@
+"""``copath bench fleet``: a scenario in lockstep over Zenoh and in one process, side by side.
+
+For each scenario (default E5.4 and E6.1) it runs the fleet (one process per robot, the
+simulator and the recorder, as ``copath run``) and the in-process loop (the same node
+code on the in-memory bus, ``orchestrator/inprocess.py``) and prints the simulated time
+each reached, the wall times, their real-time factors (simulated / wall) and the ratio of
+the two. ``startup s`` is the fleet's time from the call to the first tick (every robot's
+controller built, its liveliness token seen); ``fleet s`` is the whole fleet run, start-up
+and the reading of the log included. Runs of scenarios with ``run.until = "tasks_done"``
+end when their work is done.
+"""
+
+from __future__ import annotations
+
+import argparse
+import pathlib
+import shutil
+import tempfile
+import time
+from typing import Any
+
+from .bench import emit, print_table
+
+__all__ = ["add_arguments", "run", "measure"]
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--scenarios", nargs="+", default=["e5.4", "e6.1"], metavar="SCENARIO",
+                        help="bundled stems, experiment ids or files [e5.4 e6.1]")
+    parser.add_argument("--duration", type=float, metavar="S", help="simulated seconds (default: the scenario's)")
+    parser.add_argument("--no-fleet", action="store_true", help="in-process only")
+    parser.add_argument("--no-inprocess", action="store_true", help="fleet only")
+    parser.add_argument("--out", help="keep the fleet runs here (default: a temporary directory, removed)")
+    parser.add_argument("--json", action="store_true", help="print JSON instead of the table")
+
+
+def _startup_s(out: pathlib.Path, t_call: float) -> float | None:
+    """Seconds from the call to the simulator's first tick (its ``Start`` record)."""
+    from .mcaplog import read_log  # noqa: PLC0415
+
+    for _, _, rec in read_log(out / "run.mcap").records:
+        if getattr(rec, "TYPE", "") == "start":
+            return round(rec.wall_t0 - t_call, 3)
+    return None
+
+
+def measure(name: str, args: argparse.Namespace, root: pathlib.Path) -> dict[str, Any]:
+    from . import api  # noqa: PLC0415
+
+    overrides = [f"run.duration_s={args.duration}"] if args.duration else []
+    sc = api.load(name, overrides)
+    row: dict[str, Any] = {"scenario": sc.id, "robots": len(sc.robots), "until": sc.run.until, "ok": True}
+    if not args.no_inprocess:
+        from .inprocess import run_scenario  # noqa: PLC0415
+
+        t0 = time.perf_counter()
+        res = run_scenario(sc)
+        wall = time.perf_counter() - t0
+        row.update(inproc_sim_s=res.metrics["sim_time_s"], inproc_wall_s=round(wall, 3),
+                   inproc_rtf=round(res.metrics["sim_time_s"] / wall, 2))
+    if not args.no_fleet:
+        from .fleet import RunOptions, new_run_id, run_fleet  # noqa: PLC0415
+
+        rid = new_run_id(f"bench-{sc.id}")
+        t_call = time.time()
+        t0 = time.perf_counter()
+        outcome = run_fleet(sc, RunOptions(out_dir=root / rid, run_id=rid, progress=False))
+        wall = time.perf_counter() - t0
+        m = outcome.metrics or {}
+        start = _startup_s(outcome.out_dir, t_call)
+        sim_t = m.get("sim_time_s") or 0.0
+        row.update(ok=outcome.ok, reason=outcome.reason, fleet_sim_s=sim_t, fleet_wall_s=round(wall, 3),
+                   startup_s=start, fleet_rtf=round(sim_t / wall, 2) if wall else None,
+                   ticking_rtf=round(sim_t / (wall - start), 2) if start and wall > start else None)
+    if row.get("inproc_rtf") and row.get("fleet_rtf"):
+        row["ratio"] = round(row["inproc_rtf"] / row["fleet_rtf"], 2)
+    return row
+
+
+def _table(result: dict[str, Any]) -> None:
+    print("lockstep runs: fleet over Zenoh (one process per robot) and the in-process loop; rtf = simulated / wall")
+    print_table(result["runs"], [
+        ("scenario", "scenario", ""), ("robots", "robots", "d"), ("until", "until", ""),
+        ("fleet_sim_s", "sim s", ".1f"), ("startup_s", "startup s", ".2f"), ("fleet_wall_s", "fleet s", ".2f"),
+        ("fleet_rtf", "fleet rtf", ".1f"), ("ticking_rtf", "rtf ticking", ".1f"),
+        ("inproc_sim_s", "inproc sim s", ".1f"), ("inproc_wall_s", "inproc s", ".2f"),
+        ("inproc_rtf", "inproc rtf", ".1f"), ("ratio", "inproc/fleet", ".1f")])
+    for r in result["runs"]:
+        if not r["ok"]:
+            print(f"{r['scenario']}: fleet run failed: {r.get('reason')}")
+
+
+def run(args: argparse.Namespace) -> int:
+    keep = args.out is not None
+    root = pathlib.Path(args.out) if keep else pathlib.Path(tempfile.mkdtemp(prefix="copath-bench-fleet-"))
+    root.mkdir(parents=True, exist_ok=True)
+    try:
+        rows = [measure(s, args, root) for s in args.scenarios]
+    finally:
+        if not keep:
+            shutil.rmtree(root, ignore_errors=True)
+    emit(args, {"runs": rows}, _table)
+    return 0 if all(r["ok"] for r in rows) else 1

@@ -197,6 +197,12 @@ class PIConsensus:
     weighted with the Metropolis weights (symmetric, lambda_max(L) < 2) and scaled by
     the gains k_P and k_I [1/s]; with k_P dt <= 1 the step is stable for any graph.
     Reset at a task switch (docs/ambiguities.md, A26): w = z = 1, eta = 0.
+
+    Under communication delay the neighbours' z_j, eta_j are old; fed as they are, the
+    coupling -k_P L z pulls every z_i back towards the team's past and the team's decay
+    slows by a factor of about 1 + k_P deg tau. Each neighbour entry may carry its rates
+    and age, (z_j, eta_j, deg_j, zdot_j, etadot_j, age_j): the values are then predicted
+    to now, z_j + zdot_j age_j (docs/envelope.md).
     """
 
     k_z: float
@@ -207,11 +213,16 @@ class PIConsensus:
     """Integral gain on the Metropolis Laplacian [1/s]."""
     z: float = 1.0
     eta: float = 0.0
+    zdot: float = 0.0
+    """z-dot of the last step (sent with z for the neighbours' prediction)."""
+    etadot: float = 0.0
+    """eta-dot of the last step."""
 
     def reset(self, w: float = 1.0) -> None:
         """Start a new task: z = w, eta = 0 (docs/ambiguities.md, A26)."""
         self.z = float(w)
         self.eta = 0.0
+        self.zdot = self.etadot = 0.0
 
     def step(self, w: float, neighbours, dt: float) -> float:
         """One explicit Euler step of (6.16).
@@ -220,8 +231,9 @@ class PIConsensus:
         ----------
         w : float
             Own input w_i (1 unfinished, 0 finished).
-        neighbours : iterable of (z_j, eta_j, degree_j)
-            Latest values of the same-task neighbours.
+        neighbours : iterable of (z_j, eta_j, degree_j[, zdot_j, etadot_j, age_j])
+            Latest values of the same-task neighbours; with rates and age they are
+            predicted over the age of the message.
         dt : float
             Step [s].
 
@@ -234,12 +246,18 @@ class PIConsensus:
         deg = len(nb)
         lz = 0.0  # (L z)_i
         leta = 0.0  # (L eta)_i
-        for z_j, eta_j, deg_j in nb:
-            a = metropolis_weight(deg, deg_j)
+        for z_j, eta_j, deg_j, *rates in nb:
+            g = 1.0
+            if len(rates) == 3:
+                zdot_j, etadot_j, age = rates
+                z_j, eta_j = z_j + zdot_j * age, eta_j + etadot_j * age
+                g = min(1.0, 1.0 / (self.k_p * age)) if age > 0 else 1.0
+            a = g * metropolis_weight(deg, deg_j)
             lz += a * (self.z - z_j)
             leta += a * (self.eta - eta_j)
         dz = -self.k_p * lz + self.k_z * (w - self.z) + self.k_i * leta
         deta = -self.k_i * lz
         self.z += dt * dz
         self.eta += dt * deta
+        self.zdot, self.etadot = dz, deta
         return self.z

@@ -137,7 +137,7 @@ class RolesController:
 
     def _agree(self, same: dict[str, Peer], p: np.ndarray) -> None:
         """One step of Algorithm 6.1; adopts the placement once agreed."""
-        est = self.agreement.step(same)
+        est = self.agreement.step(same, self._t)
         if self.roles.phase != CONSENSUS or self.roles.targets is not None:
             return
         # a neighbour has already agreed: take its transform (the first agreement floods
@@ -235,7 +235,7 @@ class RolesController:
             cmd = self.motion.drive(pose, goal, obstacles, self._t, self.name)
         # phase 4: task sequencing, (6.16)
         self.tasks.done = self._finished(p, waiting)
-        self.tasks.step(same, dt)
+        self.tasks.step(same, dt, self._t)
         if self.tasks.switch_due(self._t, roles.phase):
             logger.info("%s: z = %.3f <= %.2f, moving to formation %d", self.name, self.tasks.pi.z,
                         self.cfg.threshold, self.tasks.task + 1)
@@ -255,8 +255,7 @@ class RolesController:
             "pos": [float(pose[0]), float(pose[1])],
             "vel": [v * math.cos(th), v * math.sin(th)],
             "deg": len(same),
-            "z": float(tasks.pi.z),
-            "eta": float(tasks.pi.eta),
+            **tasks.payload(),
             "claim": int(roles.position),
             "d": float(roles.distance(pose[:2])) if roles.phase == ASSIGNED else 1e9,
             "taken": sorted(int(k) for k in roles.book.taken),

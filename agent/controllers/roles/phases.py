@@ -68,6 +68,8 @@ class Peer:
 
     heard: float
     """Own clock when it was received [s]."""
+    age: float
+    """Age of the message when it was received [s] (its age at t is age + t - heard)."""
     position: np.ndarray
     """Sender position extrapolated to ``heard`` [m]."""
     velocity: np.ndarray
@@ -97,6 +99,7 @@ class PeerTable:
             vel = np.asarray(pl.get("vel") or (0.0, 0.0), dtype=float)
             self.peers[got.sender] = Peer(
                 heard=got.received_at,
+                age=max(got.message.age, 0.0),
                 position=np.asarray(pos, dtype=float) + vel * max(got.message.age, 0.0),
                 velocity=vel,
                 task=int(pl.get("task", -1)),
@@ -122,6 +125,12 @@ class Agreement:
 
     The robot adopts the estimate once neighbours' estimates and its own change over
     ``consensus_hold_s`` stay within ``consensus_tol`` (or after ``consensus_timeout_s``).
+
+    A same-task neighbour stays a consensus neighbour while it was heard within the
+    longer of ``neighbour_timeout_s`` and ``consensus_hold_s``: under loss a neighbour
+    that drops out of the range-limited graph for a few silent steps and comes back
+    would change every degree, hence every Metropolis weight, and stop the iteration
+    each time (docs/envelope.md). Its edge flow is state, so its newest one is used.
     """
 
     def __init__(self, name: str, p: np.ndarray, cfg: RolesConfig) -> None:
@@ -131,11 +140,18 @@ class Agreement:
         self.history: list[tuple[float, np.ndarray, float]] = []
         """(t, estimate, largest neighbour disagreement) over the hold window."""
         self.neighbours: dict[str, NeighbourContribution] = {}
+        self.memory_s = max(cfg.neighbour_timeout_s, cfg.consensus_hold_s)
+        """A neighbour counts while heard within this [s]."""
+        self.heard: dict[str, Peer] = {}
+        """Newest same-task state of every consensus neighbour."""
 
-    def step(self, same: dict[str, Peer]) -> np.ndarray:
+    def step(self, same: dict[str, Peer], t: float | None = None) -> np.ndarray:
         """One consensus iteration over the neighbours' latest contributions; the estimate."""
+        self.heard.update(same)
+        if t is not None:
+            self.heard = {n: q for n, q in self.heard.items() if n in same or t - q.heard <= self.memory_s}
         nbrs = {}
-        for n, q in same.items():
+        for n, q in (self.heard if t is not None else same).items():
             x = q.payload.get("ac_x")
             if not x or len(x) != N_MOMENTS:
                 continue
@@ -426,11 +442,23 @@ class TaskSequence:
         self.done = False
         self.pi.reset(1.0)
 
-    def step(self, same: dict[str, Peer], dt: float) -> float:
-        """(6.16) with w_i = 0 once this robot has finished its task; returns z_i."""
-        return self.pi.step(0.0 if self.done else 1.0,
-                            ((float(q.payload.get("z", 1.0)), float(q.payload.get("eta", 0.0)),
-                              int(q.payload.get("deg", 0))) for q in same.values()), dt)
+    def step(self, same: dict[str, Peer], dt: float, t: float | None = None) -> float:
+        """(6.16) with w_i = 0 once this robot has finished its task; returns z_i. With the
+        time t, the neighbours' z_j, eta_j are predicted over their message age with the
+        rates they sent (:class:`.consensus.PIConsensus`)."""
+        def entry(q: Peer) -> tuple:
+            pl = q.payload
+            z, eta, deg = float(pl.get("z", 1.0)), float(pl.get("eta", 0.0)), int(pl.get("deg", 0))
+            if t is None or "zdot" not in pl:
+                return z, eta, deg
+            return z, eta, deg, float(pl["zdot"]), float(pl.get("etadot", 0.0)), q.age + t - q.heard
+
+        return self.pi.step(0.0 if self.done else 1.0, (entry(q) for q in same.values()), dt)
+
+    def payload(self) -> dict[str, Any]:
+        """The (6.16) fields of ``role_state``: z, eta and their rates."""
+        pi = self.pi
+        return {"z": float(pi.z), "eta": float(pi.eta), "zdot": float(pi.zdot), "etadot": float(pi.etadot)}
 
     def switch_due(self, t: float, phase: int) -> bool:
         """z_i has reached the threshold and there is a next formation."""

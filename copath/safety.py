@@ -16,25 +16,26 @@ Per robot i and heard neighbour j (centre ``p_j`` from the neighbour's message, 
     n_ij^T pdot_i >= -(gamma / 2) h_ij,   n_ij = (p_i - p_j) / ||p_i - p_j||
 
 where ``s_j`` bounds the neighbour's speed, so ``s_j a_j`` is the distance it may have
-moved since it sent its position. A range reading (sensor ring, Sec. 4.4.3) gives a point
+moved since it sent its position (with an assumed acceleration bound, a tighter disc around
+its extrapolated position, :class:`SafetyGuard`). A range reading (sensor ring, Sec. 4.4.3) gives a point
 ``o`` with the same half condition ``n^T pdot_i >= -(gamma / 2) h``: a static obstacle is
 then only approached more slowly, and a point on another robot, whose own filter sees this
-one too, is covered as a pair. ``pdot_i = G(theta) u`` is linear in the command (omni: the body
-velocities rotated; unicycle: ``v (cos theta, sin theta)``, so only v is ever constrained and
-omega keeps its nominal value), so the filter is
-the QP
+one too, is covered as a pair. ``pdot_i = G(theta) u`` is linear in the command (omni: the
+body velocities rotated; unicycle: ``v (cos theta, sin theta)``, so only v is ever
+constrained and omega keeps its nominal value), so the filter is the QP
 
     min_u (u - u_nom)^T W (u - u_nom) + rho (sigma + sigma^2)
     s.t.  n^T G u + sigma >= -gamma_share h   (every barrier),  sigma >= 0,
           model limits (omni wheel speeds (3.2); unicycle |v| <= v_max, |omega| <= omega_max),
-          optional speed cap |qdot| <= speed_max_mps,
+          optional speed cap |pdot| <= speed_max_mps,
 
 solved by CasADi's ``conic`` interface with DAQP. A barrier already crossed (h < 0: an
 overlapping start, or a stale neighbour's grown disc) only forbids closing in further
-(h is clamped at 0), so stopping (u = 0) always satisfies every barrier; the slack ``sigma``
-(exact penalty) is a guard that keeps the QP solvable whatever the numbers. A nominal command that already
-satisfies every barrier (after the model's own saturation) is returned unchanged: the
-filter is inactive, and bit for bit invisible, away from other robots.
+(h is clamped at 0), so stopping (u = 0) always satisfies every barrier; the slack
+``sigma`` (exact penalty) is a guard that keeps the QP solvable whatever the numbers. A
+nominal command that already satisfies every barrier (after the model's own saturation) is
+returned unchanged: the filter is inactive, and bit for bit invisible, away from other
+robots.
 
 The derivation, the chosen constants and the guarantee are written out in
 ``docs/safety.md``. The filter is pure: no clock, no transport; the runtime times it.

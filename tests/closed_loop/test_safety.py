@@ -126,7 +126,8 @@ def test_formation_switching_without_its_repulsion_is_kept_apart_by_the_filter()
     raw = dict(load_scenario(config("e6.6-")).raw)
     raw["controller"] = {**raw["controller"], "switch_at": [3.0], "k_r": 1e-9}
     slots = ([[0.0, 0.5], [0.0, -0.5]], [[0.0, 0.0], [0.8, 0.0]], [[0.0, -0.5], [0.0, 0.5]])
-    raw["robots"] = [{**r, "controller": {**r.get("controller", {}), "slots": sl}} for r, sl in zip(raw["robots"], slots)]
+    raw["robots"] = [{**r, "controller": {**r.get("controller", {}), "slots": sl}}
+                     for r, sl in zip(raw["robots"], slots)]
     m = run_scenario(parse_scenario({**raw, "safety": {"enabled": True}})).metrics
     assert m["fleet"]["collisions"] == 0 and m["fleet"]["min_separation_m"] >= 0.12
     assert sum(r["safety_interventions"] for r in m["robots"].values()) > 0

@@ -261,13 +261,18 @@ class AgentNode:
 
 
 def _peak_rss_mb() -> float | None:
-    """Peak resident memory of this process [MB] (in-process runs share one process)."""
-    try:
-        import resource  # noqa: PLC0415  (POSIX)
+    """Peak resident memory of this process [MB] (in-process runs share one process).
 
-        return round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, 1)  # Linux: kB
-    except (ImportError, OSError):
-        return None
+    Linux's ``VmHWM``: ``getrusage``'s ``ru_maxrss`` survives ``exec`` and so would report
+    the spawning orchestrator's memory for a small agent."""
+    try:
+        with open("/proc/self/status") as fh:
+            for line in fh:
+                if line.startswith("VmHWM:"):
+                    return round(int(line.split()[1]) / 1024.0, 1)
+    except (OSError, ValueError, IndexError):
+        pass
+    return None
 
 
 def main(argv: list[str] | None = None) -> int:

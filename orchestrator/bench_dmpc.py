@@ -42,6 +42,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="coordination error measured after this time [10]")
     parser.add_argument("--out", help="keep the runs here (default: a temporary directory, removed)")
     parser.add_argument("-q", "--quiet", action="store_true", help="no progress bars")
+    parser.add_argument("--json", action="store_true", help="print JSON instead of the table")
 
 
 def scenario_table(n: int, dt: float, duration: float, horizon: int, settle: float) -> dict[str, Any]:
@@ -131,21 +132,30 @@ def run(args: argparse.Namespace) -> int:
     finally:
         if not keep:
             shutil.rmtree(root, ignore_errors=True)
+    from .bench import emit  # noqa: PLC0415
+
+    rows = [{k: (None if isinstance(v, float) and math.isnan(v) else v) for k, v in r.items()} for r in rows]
+    emit(args, {"target_period_ms": args.dt * 1e3, "horizon": args.horizon, "duration_s": args.duration,
+                "runs": rows, "kept_in": str(root) if keep else None}, lambda res: _table(res, args))
+    return 0 if all(r["ok"] for r in rows) else 1
+
+
+def _table(result: dict[str, Any], args: argparse.Namespace) -> None:
+    rows = result["runs"]
+    nan = float("nan")
     print(f"DMPC over Zenoh, realtime, target period {args.dt * 1e3:.0f} ms, horizon {args.horizon}, "
           f"{args.duration:.0f} s simulated per run")
     head = (f"{'robots':>6} {'period p50':>11} {'period p99':>11} {'step p50':>9} {'step p99':>9} "
             f"{'misses':>13} {'coord max m':>12} {'solver fail':>12} {'wall s':>7}")
     print(head)
     print("-" * len(head))
-    ok = True
     for r in rows:
         miss = f"{r['misses']}/{r['steps']}"
         coord = "-" if r["coord"] is None else f"{r['coord']:.4f}"
-        print(f"{r['n']:>6} {r['period_p50']:>9.1f}ms {r['period_p99']:>9.1f}ms {r['step_p50']:>7.2f}ms "
-              f"{r['step_p99']:>7.2f}ms {miss:>13} {coord:>12} {r['failures']:>12} {r['wall']:>7.1f}")
+        g = {k: (nan if r[k] is None else r[k]) for k in ("period_p50", "period_p99", "step_p50", "step_p99")}
+        print(f"{r['n']:>6} {g['period_p50']:>9.1f}ms {g['period_p99']:>9.1f}ms {g['step_p50']:>7.2f}ms "
+              f"{g['step_p99']:>7.2f}ms {miss:>13} {coord:>12} {r['failures']:>12} {r['wall']:>7.1f}")
         if not r["ok"]:
-            ok = False
             print(f"       run failed: {r['reason']}")
-    if keep:
-        print(f"runs kept in {root}")
-    return 0 if ok else 1
+    if result["kept_in"]:
+        print(f"runs kept in {result['kept_in']}")

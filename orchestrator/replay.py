@@ -20,26 +20,44 @@ from mcap.reader import make_reader
 from copath.wire.keys import ROOT, valid_run_id
 from copath.wire.session import SessionConfig, ZenohLink, free_port, loopback_endpoint
 
-from .mcaplog import iter_raw
+from .mcaplog import LogError, check_log, iter_raw, read_metadata, require_copath
 
 __all__ = ["log_info", "format_info", "replay", "ReplayResult"]
 
 
 def log_info(path: str | pathlib.Path) -> dict:
-    """Summary of a run log as a dict (what ``copath info`` prints)."""
+    """Summary of a run log as a dict (what ``copath info`` prints).
+
+    Raises FileNotFoundError, or :class:`~orchestrator.mcaplog.LogError` (a ValueError)
+    for an empty, non-MCAP or foreign file. A log cut short (``cut_short``) is read up to
+    its last complete chunk; its Foxglove views are not counted."""
     path = pathlib.Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"run log {str(path)!r} does not exist")
-    with path.open("rb") as fh:
-        reader = make_reader(fh)
-        summary = reader.get_summary()
-        metadata = {m.name: dict(m.metadata) for m in reader.iter_metadata()}
-    if summary is None or summary.statistics is None:
-        raise ValueError(f"{path.name} has no summary section (was the run interrupted before the log was closed?)")
-    st = summary.statistics
+    chk = check_log(path)
+    metadata = read_metadata(path)
+    require_copath(path, metadata)
     channels, viz = {}, {}
-    for cid, ch in summary.channels.items():
-        (channels if ch.message_encoding == "msgpack" else viz)[ch.topic] = st.channel_message_counts.get(cid, 0)
+    if chk.cut_short:
+        times = []
+        for t, key, _ in iter_raw(path):
+            channels[key] = channels.get(key, 0) + 1
+            times.append(t)
+        start, end, count = (min(times), max(times), len(times)) if times else (0, 0, 0)
+        outcome = {"ok": "False", "reason": "cut short: the log ends before its footer (the recorder was "
+                                            f"stopped before closing it); {count} messages read up to its last "
+                                            "complete chunk"}
+    else:
+        try:
+            with path.open("rb") as fh:
+                summary = make_reader(fh).get_summary()
+        except Exception as exc:  # a damaged footer or summary
+            raise LogError(f"{path}: the MCAP summary is damaged ({type(exc).__name__}: {exc})") from None
+        if summary is None or summary.statistics is None:
+            raise LogError(f"{path}: the MCAP file has no summary section")
+        st = summary.statistics
+        for cid, ch in summary.channels.items():
+            (channels if ch.message_encoding == "msgpack" else viz)[ch.topic] = st.channel_message_counts.get(cid, 0)
+        start, end, count = st.message_start_time, st.message_end_time, st.message_count
+        outcome = metadata.get("outcome", {})
     scen = json.loads(metadata.get("scenario", {}).get("json", "{}") or "{}")
     return {
         "file": path.name,
@@ -47,16 +65,17 @@ def log_info(path: str | pathlib.Path) -> dict:
         "messages": sum(channels.values()),
         "channels": dict(sorted(channels.items())),
         "viz_channels": dict(sorted(viz.items())),
-        "start_ns": st.message_start_time,
-        "end_ns": st.message_end_time,
-        "duration_s": (st.message_end_time - st.message_start_time) / 1e9 if st.message_count else 0.0,
+        "start_ns": start,
+        "end_ns": end,
+        "duration_s": (end - start) / 1e9 if count else 0.0,
+        "cut_short": chk.cut_short,
         "run_id": metadata.get("copath", {}).get("run_id"),
         "version": metadata.get("copath", {}).get("version"),
         "clock": metadata.get("copath", {}).get("clock"),
         "robots": [r for r in metadata.get("copath", {}).get("robots", "").split(",") if r],
         "scenario_id": scen.get("id"),
         "scenario_title": scen.get("title"),
-        "outcome": metadata.get("outcome", {}),
+        "outcome": outcome,
         "scenario": scen,
     }
 
@@ -108,8 +127,8 @@ def replay(path: str | pathlib.Path, *, speed: float = 1.0, run_id: str | None =
     if run_id:
         valid_run_id(run_id)
     path = pathlib.Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"run log {str(path)!r} does not exist")
+    check_log(path)
+    require_copath(path, read_metadata(path))
     if connect:
         conf = SessionConfig(mode="client", connect=tuple(connect), listen=tuple(listen))
         endpoint = connect[0]

@@ -20,6 +20,7 @@ __all__ = [
     "OmniModel",
     "UnicycleModel",
     "integrate_body_velocity",
+    "integrate_body_velocities",
     "wheel_matrix",
     "rotation_speed_limit",
     "scale_velocities",
@@ -61,6 +62,22 @@ def integrate_body_velocity(pose, body_vel, dt: float) -> np.ndarray:
         dy_b = (u * (1.0 - ca) + v * sa) / w
     c, s = math.cos(th), math.sin(th)
     return np.array([x + c * dx_b - s * dy_b, y + s * dx_b + c * dy_b, th + a])
+
+
+def integrate_body_velocities(poses: np.ndarray, body_vels: np.ndarray, dt: float) -> np.ndarray:
+    """:func:`integrate_body_velocity` for many robots at once: poses (n, 3), body
+    velocities (n, 3) held for dt; returns the new poses (n, 3) (the simulator's physics)."""
+    P = np.asarray(poses, dtype=float)
+    B = np.asarray(body_vels, dtype=float)
+    u, v, w = B[:, 0], B[:, 1], B[:, 2]
+    a = w * dt
+    small = np.abs(a) < 1e-9
+    w_safe = np.where(small, 1.0, w)
+    sa, ca = np.sin(a), np.cos(a)
+    dx_b = np.where(small, u * dt, (u * sa + v * (ca - 1.0)) / w_safe)
+    dy_b = np.where(small, v * dt, (u * (1.0 - ca) + v * sa) / w_safe)
+    c, s = np.cos(P[:, 2]), np.sin(P[:, 2])
+    return np.stack([P[:, 0] + c * dx_b - s * dy_b, P[:, 1] + s * dx_b + c * dy_b, P[:, 2] + a], axis=1)
 
 
 @dataclass(frozen=True)

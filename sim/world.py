@@ -1,8 +1,12 @@
-"""The world: true poses, obstacles, sensors and time (pure; ``sim/node.py`` puts it on Zenoh).
+"""The world: true poses, obstacles, sensors and time (pure; ``sim/node.py`` puts it on a link).
 
 Each robot's commanded body velocities are saturated by its model's limits (a command
 beyond them is counted as a limit violation) and integrated exactly over the tick
-(``copath.models.integrate_body_velocity``). Observations carry the pose with optional
+(``copath.models.integrate_body_velocities``). The physics is vectorised over the robots:
+poses, requested and applied commands live in arrays, one row per robot, and each model
+kind saturates its rows at once (unicycles: the curvature-preserving scaling of
+Sec. 5.5.3; omni robots: the common wheel-speed scaling of (3.2)), so a realtime
+simulator steps hundreds of robots at 100 Hz (docs/performance.md). Observations carry the pose with optional
 Gaussian noise (or, with a ``[sensing]`` profile, the raw readings and measurements of
 the robot's sensor models, ``sim/sensing.py``) and, when enabled, a ring of range readings computed from the true
 geometry of the obstacles (``sim/geometry.py``) and of the other robots' discs.
@@ -14,6 +18,7 @@ import math
 
 import numpy as np
 
+from copath.models import OmniModel, UnicycleModel, integrate_body_velocities, wheel_matrix
 from copath.scenario import Scenario
 from copath.wire.messages import Obs, Truth
 
@@ -34,9 +39,22 @@ class World:
         self.scenario = scenario
         self.names = list(scenario.robot_names)
         self.models = {r.name: r.model for r in scenario.robots}
-        self.poses = {r.name: np.array(r.pose, dtype=float) for r in scenario.robots}
-        self.requested = {r.name: np.zeros(r.model.command_size) for r in scenario.robots}
-        self.applied = {r.name: np.zeros(r.model.command_size) for r in scenario.robots}
+        n = len(self.names)
+        self._P = np.array([r.pose for r in scenario.robots], dtype=float).reshape(n, 3)
+        self.poses = {name: self._P[i] for i, name in enumerate(self.names)}  # row views
+        self._B = np.zeros((n, 3))  # applied body velocities (u, v, omega) of every robot
+        self._viol = np.zeros(n, dtype=bool)
+        self._groups = [_Group(kind, [i for i, r in enumerate(scenario.robots) if isinstance(r.model, cls)],
+                               scenario.robots) for kind, cls in (("unicycle", UnicycleModel), ("omni", OmniModel))]
+        self._groups = [g for g in self._groups if len(g.rows)]
+        if sum(len(g.rows) for g in self._groups) != n:
+            raise ValueError("every robot model must be a unicycle or an omni robot")
+        self.requested: dict[str, np.ndarray] = {}
+        self.applied: dict[str, np.ndarray] = {}
+        for g in self._groups:
+            for j, i in enumerate(g.rows):
+                self.requested[self.names[i]] = g.req[j]  # row views
+                self.applied[self.names[i]] = g.app[j]
         self.violated = {r.name: False for r in scenario.robots}
         self.t = 0.0
         self._noise_rng = np.random.default_rng(np.random.SeedSequence([scenario.run.seed, 101]))
@@ -58,24 +76,22 @@ class World:
     # -- commands and integration ---------------------------------------------------
     def command(self, name: str, cmd) -> None:
         """Set the requested command of a robot (held until the next one)."""
-        self.requested[name] = np.asarray(cmd, dtype=float).reshape(-1)
+        row = self.requested[name]
+        row[:] = np.asarray(cmd, dtype=float).reshape(row.shape)
 
     def advance(self, dt: float) -> None:
         """Integrate every robot over dt with its saturated command."""
-        for n in self.names:
-            model = self.models[n]
-            applied, violated = model.saturate(self.requested[n])
-            self.applied[n] = applied
-            self.violated[n] = violated
-            if n in self.sensing:
-                self.sensing[n].advance(self.t, self.poses[n], applied, dt)
-            self.poses[n] = model.step(self.poses[n], applied, dt)
+        self.saturate_all()
+        for n, sensors in self.sensing.items():
+            sensors.advance(self.t, self.poses[n].copy(), self.applied[n].copy(), dt)
+        self._P[:] = integrate_body_velocities(self._P, self._B, dt)
         self.t += dt
 
     def saturate_all(self) -> None:
         """Compute applied commands and violations without moving (for the truth record)."""
-        for n in self.names:
-            self.applied[n], self.violated[n] = self.models[n].saturate(self.requested[n])
+        for g in self._groups:
+            g.saturate(self._B, self._viol)
+        self.violated = dict(zip(self.names, self._viol.tolist()))
 
     # -- observations -----------------------------------------------------------------
     def obstacle_polygons(self, t: float | None = None) -> list[np.ndarray]:
@@ -123,18 +139,64 @@ class World:
             clearance = [float(self._geo.clearance(self.poses[n][:2], self.models[n].radius, polys_np))
                          for n in self.names]
             polys = [p.tolist() for p in polys_np]
-        wheel = []
-        for n in self.names:
-            ws = self.models[n].wheel_speeds(self.applied[n])
-            wheel.append(float(np.max(np.abs(ws))))
+        wheel = np.zeros(len(self.names))
+        for g in self._groups:
+            wheel[g.rows] = g.wheel_max()
         return Truth(
             k=k,
             t=float(self.t),
             names=list(self.names),
-            poses=[[float(v) for v in self.poses[n]] for n in self.names],
-            commands=[[float(v) for v in self.applied[n]] for n in self.names],
-            violated=[bool(self.violated[n]) for n in self.names],
-            wheel_max=wheel,
+            poses=self._P.tolist(),
+            commands=[self.applied[n].tolist() for n in self.names],
+            violated=self._viol.tolist(),
+            wheel_max=wheel.tolist(),
             clearance=clearance,
             obstacles=polys,
         )
+
+
+class _Group:
+    """The robots of one model kind: their rows, limits, requested and applied commands."""
+
+    def __init__(self, kind: str, rows: list[int], robots) -> None:
+        self.kind = kind
+        self.rows = np.array(rows, dtype=int)
+        models = [robots[i].model for i in rows]
+        size = 2 if kind == "unicycle" else 3
+        self.req = np.zeros((len(rows), size))
+        self.app = np.zeros((len(rows), size))
+        if kind == "unicycle":
+            self.v_max = np.array([m.v_max for m in models])
+            self.w_max = np.array([m.omega_max for m in models])
+            self.b = np.array([m.b for m in models])
+        else:
+            self.M = np.stack([wheel_matrix(m.delta, m.L_w) for m in models]) if models else np.zeros((0, 3, 3))
+            self.q_max = np.array([m.qdot_max for m in models])
+
+    def saturate(self, B: np.ndarray, viol: np.ndarray) -> None:
+        """Applied commands (into ``self.app``), body velocities (rows of B) and violations."""
+        R = self.req
+        if self.kind == "unicycle":  # UnicycleModel.saturate, row-wise
+            v, w = R[:, 0], R[:, 1]
+            tol = 1e-6
+            viol[self.rows] = (np.abs(v) > self.v_max * (1 + tol)) | (np.abs(w) > self.w_max * (1 + tol))
+            sigma = np.maximum(1.0, np.maximum(np.abs(v) / self.v_max, np.abs(w) / self.w_max))
+            self.app[:, 0] = v / sigma
+            self.app[:, 1] = w / sigma
+            B[self.rows, 0] = self.app[:, 0]
+            B[self.rows, 1] = 0.0
+            B[self.rows, 2] = self.app[:, 1]
+        else:  # OmniModel.saturate, row-wise
+            peak = np.max(np.abs(np.einsum("kij,kj->ki", self.M, R)), axis=1)
+            over = peak > self.q_max * (1 + 1e-6)
+            viol[self.rows] = over
+            scale = np.where(over, self.q_max / np.where(over, peak, 1.0), 1.0)
+            self.app[:] = R * scale[:, None]
+            B[self.rows] = self.app
+
+    def wheel_max(self) -> np.ndarray:
+        """Largest wheel rim speed of each robot for its applied command [m/s]."""
+        if self.kind == "unicycle":
+            return np.maximum(np.abs(self.app[:, 0] + self.b * self.app[:, 1]),
+                              np.abs(self.app[:, 0] - self.b * self.app[:, 1]))
+        return np.max(np.abs(np.einsum("kij,kj->ki", self.M, self.app)), axis=1)

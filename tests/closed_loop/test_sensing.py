@@ -14,7 +14,8 @@ from tests.conftest import config
 
 
 def _run(prefix: str, estimator: bool, controller: dict | None = None):
-    over = {"sensing": {"profile": "realistic", "estimator": estimator}}
+    # the whole duration (not run.until = "tasks_done"): the errors compared include holding the formation
+    over = {"sensing": {"profile": "realistic", "estimator": estimator}, "run": {"until": "duration"}}
     if controller:
         over["controller"] = controller
     return run_scenario(load_scenario(config(prefix)).with_overrides(**over))

@@ -84,6 +84,15 @@ class SafetyConfig:
     """Add a barrier per range reading when the scenario has sensors."""
     slack_weight: float = 1.0e4
     """Exact-penalty weight rho of the barrier slack (chosen)."""
+    lookahead_m: float = 0.05
+    """Unicycles: distance l of the look-ahead point z = p + l (cos theta, sin theta) whose
+    velocity the filter shapes, so it can steer as well as brake [m]; 0 filters v only
+    (chosen: 0.05 m, the Robotarium's projection distance)."""
+    deadlock_turn_rad: float = 1.2
+    """Deadlock rule: while the filter slows the robot, its QP aims at the nominal velocity of
+    the steered point (a unicycle's look-ahead point, an omni robot's centre) turned to the
+    right by this angle [rad], same speed; 0 switches the rule off (chosen: 1.2 rad, the
+    circle swap completes clean and under delay and loss, docs/safety.md)."""
 
     def __post_init__(self) -> None:
         require(self.gamma is None or self.gamma > 0, "safety.gamma", self.gamma, "must be > 0")
@@ -94,6 +103,10 @@ class SafetyConfig:
                 self.accel_max_mps2, "must be > 0 (or left out)")
         require(self.max_age_s > 0, "safety.max_age_s", self.max_age_s, "must be > 0")
         require(self.slack_weight > 0, "safety.slack_weight", self.slack_weight, "must be > 0")
+        require(math.isfinite(self.lookahead_m) and self.lookahead_m >= 0, "safety.lookahead_m",
+                self.lookahead_m, "must be >= 0 (0: the filter changes only v of a unicycle)")
+        require(math.isfinite(self.deadlock_turn_rad) and 0 <= self.deadlock_turn_rad <= math.pi / 2,
+                "safety.deadlock_turn_rad", self.deadlock_turn_rad, "must be in [0, pi/2] (0: no deadlock rule)")
 
 
 @dataclass(frozen=True)
@@ -110,6 +123,9 @@ class Neighbour:
     """Bound on its speed [m/s] (inflates its disc by speed_max * age)."""
     spread: float | None = None
     """Distance it may be from ``position`` now [m], when known better than speed_max * age."""
+    lookahead: float = 0.0
+    """Its look-ahead distance [m] (unicycles filtering with one): its look-ahead point is within
+    this of its centre, heading unknown."""
 
 
 @dataclass(frozen=True)
@@ -127,6 +143,8 @@ class SafetyResult:
     """Smallest barrier value h over the constraints [m] (inf without constraints)."""
     ok: bool = True
     """False when the QP failed and the robot was stopped instead."""
+    biased: bool = False
+    """True when the deadlock rule's right-hand bias shaped the command."""
 
 
 def max_speed(model: OmniModel | UnicycleModel) -> float:
@@ -142,6 +160,19 @@ def max_speed(model: OmniModel | UnicycleModel) -> float:
     peak = np.max(np.abs(model.M[:, :2] @ d), axis=0)
     return float(model.qdot_max / peak.min())
 
+
+LOOKAHEAD_SLACK_SHARE = 0.01
+"""Weight of the look-ahead rows' slack relative to ``slack_weight`` (chosen: still an exact
+penalty for command changes of the size of the limits)."""
+
+LOOKAHEAD_RECOVERY = 0.25
+"""A look-ahead point inside its inflated disc (h_z < 0) is pushed out at this fraction of the
+rate gamma / 2 |h_z| (chosen: gentle, so stale, jumping positions do not make it chatter)."""
+
+BIAS_BELOW = 1.0
+"""The deadlock rule applies when the filtered command moves the steered point at less than this
+fraction of the nominal command's speed (chosen: 1, whenever the filter slows the robot; at
+0.2, "nearly stopped", the twelve robots of the circle swap close every gap first and jam)."""
 
 _OCTAGON = np.array([[math.cos(a), math.sin(a)] for a in np.arange(4) * math.pi / 4])
 _COS8 = math.cos(math.pi / 8)
@@ -174,8 +205,14 @@ class SafetyFilter:
         self.omni = isinstance(model, OmniModel)
         self.m = model.command_size
         self.r_eff = model.radius
-        # command-space weight W: wheel-speed scale for the turn rate (L_w, or the half axle b)
-        self._W = np.diag([1.0, 1.0, model.L_w**2]) if self.omni else np.diag([1.0, model.b**2])
+        self.lookahead = 0.0 if self.omni else float(config.lookahead_m)
+        """Look-ahead distance l of this robot [m] (0: omni, or a unicycle filtering v only)."""
+        # command-space weight W: wheel-speed scale for the turn rate (L_w, or the half axle b);
+        # a unicycle with a look-ahead point: |zdot - zdot_nom|^2 = (u - u_nom)^T diag(1, l^2) (u - u_nom)
+        if self.omni:
+            self._W = np.diag([1.0, 1.0, model.L_w**2])
+        else:
+            self._W = np.diag([1.0, (self.lookahead or model.b)**2])
         # limits as rows L u in [-lim, lim]
         if self.omni:
             self._L = model.M.copy()
@@ -194,18 +231,21 @@ class SafetyFilter:
             self._c = np.array([self._cap or 0.0])
         # constant parts of the QP: Hessian, limit and cap rows, slack bound
         m = self.m
-        self._H = np.zeros((m + 1, m + 1))
+        # variables (u, sigma, sigma_z): the centre barriers' slack and the look-ahead rows' own,
+        # cheaper one (those rows steer; the centre rows keep robots apart)
+        self._H = np.zeros((m + 2, m + 2))
         self._H[:m, :m] = 2 * self._W
         self._H[m, m] = 2 * config.slack_weight
+        self._H[m + 1, m + 1] = 2 * config.slack_weight * LOOKAHEAD_SLACK_SHARE
         rows_a, rows_l = [self._L], [self._lim]
         if self._cap is not None:
             rows_a.append(self._C)
             rows_l.append(self._c)
-        self._fixed_a = np.hstack([np.vstack(rows_a), np.zeros((sum(len(r) for r in rows_l), 1))])
+        self._fixed_a = np.hstack([np.vstack(rows_a), np.zeros((sum(len(r) for r in rows_l), 2))])
         self._fixed_u = np.concatenate(rows_l)
         self._fixed_l = -self._fixed_u
-        self._lbx = np.r_[np.full(m, -np.inf), 0.0]
-        self._ubx = np.full(m + 1, np.inf)
+        self._lbx = np.r_[np.full(m, -np.inf), 0.0, 0.0]
+        self._ubx = np.full(m + 2, np.inf)
         self._qp = None
         self._rows = 0
         if capacity:
@@ -218,6 +258,38 @@ class SafetyFilter:
         if self.omni:
             return np.array([[c, -s, 0.0], [s, c, 0.0]])
         return np.array([[c, 0.0], [s, 0.0]])
+
+    def lookahead_map(self, theta: float) -> np.ndarray:
+        """T(theta): (2, 2) map from a unicycle's (v, omega) to the velocity of its look-ahead
+        point z = p + l (cos theta, sin theta) (the Robotarium's ``uni_to_si`` mapping); invertible
+        for l > 0, so the filter can shape any direction of zdot."""
+        c, s, lk = math.cos(theta), math.sin(theta), self.lookahead
+        return np.array([[c, -lk * s], [s, lk * c]])
+
+    def lookahead_barriers(self, pose, neighbours: Sequence[Neighbour]) -> tuple[np.ndarray, np.ndarray]:
+        """Look-ahead rows of a unicycle (l > 0): normals (k, 2) and values (k,) [m] of
+
+            h_z = ||z_i - p_j|| - (r_i + r_j + margin + spread_j + l_i + l_j),
+
+        the neighbour's centre p_j standing for its look-ahead point (within l_j of it, heading
+        unknown); the condition is ``n @ zdot >= -(gamma / 2) h_z``. Empty for l = 0."""
+        if not self.lookahead:
+            return np.zeros((0, 2)), np.zeros(0)
+        cfg = self.config
+        th = float(pose[2])
+        z = np.array([float(pose[0]) + self.lookahead * math.cos(th), float(pose[1]) + self.lookahead * math.sin(th)])
+        pts, dist = [], []
+        for nb in neighbours:
+            if nb.age > cfg.max_age_s:
+                continue
+            spread = nb.speed_max * max(nb.age, 0.0) if nb.spread is None else nb.spread
+            pts.append(nb.position)
+            dist.append(self.r_eff + nb.radius + cfg.margin_m + spread + self.lookahead + nb.lookahead)
+        if not pts:
+            return np.zeros((0, 2)), np.zeros(0)
+        d = z[None, :] - np.asarray(pts, dtype=float)
+        norm = np.linalg.norm(d, axis=1)
+        return d / np.maximum(norm, 1e-9)[:, None], norm - np.asarray(dist)
 
     def barriers(self, pose, neighbours: Sequence[Neighbour], ranges=None, angles=None
                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -256,23 +328,81 @@ class SafetyFilter:
         return float(np.hypot(u[0], u[1])) if self.omni else abs(float(u[0]))
 
     # -- the filter --------------------------------------------------------------------
-    def filter(self, pose, nominal, neighbours: Sequence[Neighbour] = (), ranges=None, angles=None) -> SafetyResult:
-        """Minimally modify ``nominal`` so every barrier holds; return it unchanged if they do."""
-        u_nom = np.asarray(nominal, dtype=float).reshape(self.m)
+    def constraints(self, pose, neighbours: Sequence[Neighbour] = (), ranges=None, angles=None
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+        """Every barrier as a row on the command: ``A u >= rhs``, which rows are soft (look-ahead
+        rows), and the smallest centre barrier value.
+
+        Centre rows (all models, range readings) and, for a unicycle with l > 0, look-ahead rows.
+        A barrier already crossed (an overlapping start, or a stale neighbour whose disc has
+        grown over the robot) asks only not to close in further (h clamped at 0), so stopping
+        stays feasible."""
+        th = float(pose[2])
         n, h, gain = self.barriers(pose, neighbours, ranges, angles)
+        A = n @ self.centre_velocity_map(th)  # (k, m): n^T G(theta)
+        rhs = -gain * np.maximum(h, 0.0)
+        soft = np.zeros(len(h), dtype=bool)
+        h_min = float(h.min()) if len(h) else math.inf
+        if self.lookahead:
+            # look-ahead rows are not clamped: a look-ahead point inside its inflated disc is
+            # pushed back out (which reopens the gaps a robot needs to steer round the others);
+            # they are soft, so they can never make the QP infeasible
+            nz, hz = self.lookahead_barriers(pose, neighbours)
+            A = np.vstack([A, nz @ self.lookahead_map(th)])
+            rhs = np.r_[rhs, -0.5 * self.gamma * np.where(hz > 0, hz, LOOKAHEAD_RECOVERY * hz)]
+            soft = np.r_[soft, np.ones(len(hz), dtype=bool)]
+        return A, rhs, soft, h_min
+
+    def steered_velocity(self, u, theta: float) -> np.ndarray:
+        """Velocity of the point the filter steers: the look-ahead point of a unicycle (l > 0),
+        else the centre [m/s]."""
+        if self.lookahead:
+            return self.lookahead_map(theta) @ np.asarray(u, dtype=float)[:2]
+        return self.centre_velocity_map(theta) @ np.asarray(u, dtype=float)
+
+    def biased_reference(self, u_nom, theta: float) -> np.ndarray | None:
+        """The nominal command with its steered velocity turned right by ``deadlock_turn_rad``
+        (the deadlock rule); None when that cannot be expressed (a unicycle with l = 0, or a
+        nominal that does not move)."""
+        psi = self.config.deadlock_turn_rad
+        if not psi or (not self.omni and not self.lookahead):
+            return None
+        nu = self.steered_velocity(u_nom, theta)
+        if float(np.hypot(*nu)) < 1e-6:
+            return None
+        c, s = math.cos(psi), math.sin(psi)
+        ref = np.array([c * nu[0] + s * nu[1], -s * nu[0] + c * nu[1]])  # R(-psi) nu
+        if self.omni:
+            c, s = math.cos(theta), math.sin(theta)
+            return np.array([c * ref[0] + s * ref[1], -s * ref[0] + c * ref[1], float(u_nom[2])])
+        return np.linalg.solve(self.lookahead_map(theta), ref)
+
+    def filter(self, pose, nominal, neighbours: Sequence[Neighbour] = (), ranges=None, angles=None) -> SafetyResult:
+        """Minimally modify ``nominal`` so every barrier holds; return it unchanged if they do.
+
+        When the solution slows the robot (its steered point's speed below ``BIAS_BELOW`` times
+        the nominal's), the QP is solved once more towards the nominal turned right
+        (:meth:`biased_reference`): a fixed, decentralised rule that breaks symmetric deadlocks
+        and keeps lockstep runs reproducible."""
+        u_nom = np.asarray(nominal, dtype=float).reshape(self.m)
+        A, rhs, soft, h_min = self.constraints(pose, neighbours, ranges, angles)
         u_sat, _ = self.model.saturate(u_nom)  # what the robot would do with the nominal command
         cap_ok = self._cap is None or self.centre_speed(u_sat) <= self._cap * (1 + 1e-9)
-        h_min = float(h.min()) if len(h) else math.inf
-        A = n @ self.centre_velocity_map(float(pose[2]))  # (k, m): n^T G(theta)
-        # a barrier already crossed (an overlapping start, or a stale neighbour whose disc has
-        # grown over the robot) asks only not to close in further: stopping stays feasible
-        rhs = -gain * np.maximum(h, 0.0)
         if cap_ok and np.all(A @ u_sat >= rhs - 1e-12):
             return SafetyResult(u_nom, False, 0.0, 0.0, h_min)
-        u, sigma, ok = self._solve(A, rhs, u_sat)
+        th = float(pose[2])
+        u, sigma, ok = self._solve(A, rhs, u_sat, soft)
+        biased = False
+        speed_nom = float(np.hypot(*self.steered_velocity(u_sat, th)))
+        if ok and float(np.hypot(*self.steered_velocity(u, th))) < BIAS_BELOW * speed_nom * (1 - 1e-9):
+            ref = self.biased_reference(u_sat, th)
+            if ref is not None:
+                ub, sb, okb = self._solve(A, rhs, ref, soft)
+                if okb:
+                    u, sigma, biased = ub, sb, True
         if not ok:  # stopping satisfies every barrier with h >= 0
             u = np.zeros(self.m)
-        return SafetyResult(u, True, float(np.linalg.norm(u - u_sat)), sigma, h_min, ok)
+        return SafetyResult(u, True, float(np.linalg.norm(u - u_sat)), sigma, h_min, ok, biased)
 
     def _solver(self, k: int):
         """The conic for at least k barrier rows: rows are limits, speed cap, then a padded
@@ -283,19 +413,24 @@ class SafetyFilter:
             import casadi as ca  # noqa: PLC0415  (only robots with a filter load CasADi)
 
             self._rows = max(cap, 2 * self._rows)
-            nv = self.m + 1
+            nv = self.m + 2
             rows = len(self._fixed_l) + self._rows
             self._qp = ca.conic(f"safety_qp_{self._rows}", "daqp",
                                 {"h": ca.Sparsity.dense(nv, nv), "a": ca.Sparsity.dense(rows, nv)},
                                 {"error_on_fail": False})
         return self._qp
 
-    def _solve(self, A: np.ndarray, rhs: np.ndarray, u_ref: np.ndarray) -> tuple[np.ndarray, float, bool]:
+    def _solve(self, A: np.ndarray, rhs: np.ndarray, u_ref: np.ndarray, soft: np.ndarray | None = None
+               ) -> tuple[np.ndarray, float, bool]:
+        """QP towards ``u_ref``; rows flagged in ``soft`` (look-ahead rows) take the cheaper slack."""
         k, m = A.shape
         qp = self._solver(k)
         pad = self._rows - k
-        g = np.r_[-2 * self._W @ u_ref, self.config.slack_weight]
-        a = np.vstack([self._fixed_a, np.hstack([A, np.ones((k, 1))]), np.zeros((pad, m + 1))])
+        soft = np.zeros(k, dtype=bool) if soft is None else soft
+        w = self.config.slack_weight
+        g = np.r_[-2 * self._W @ u_ref, w, w * LOOKAHEAD_SLACK_SHARE]
+        slack_cols = np.stack([~soft, soft], axis=1).astype(float)
+        a = np.vstack([self._fixed_a, np.hstack([A, slack_cols]), np.zeros((pad, m + 2))])
         lba = np.r_[self._fixed_l, rhs, np.full(pad, -np.inf)]
         uba = np.r_[self._fixed_u, np.full(k + pad, np.inf)]
         sol = qp(h=self._H, g=g, a=a, lba=lba, uba=uba, lbx=self._lbx, ubx=self._ubx)
@@ -330,7 +465,8 @@ class SafetyGuard:
         rows = len(models) - 1 + (sensor_count if config.use_ranges else 0)
         self.filter = SafetyFilter(config, models[name], dt, capacity=rows)
         cap = config.speed_max_mps
-        self._bounds = {n: (m.radius, max_speed(m) if cap is None else min(cap, max_speed(m)))
+        self._bounds = {n: (m.radius, max_speed(m) if cap is None else min(cap, max_speed(m)),
+                            0.0 if isinstance(m, OmniModel) else float(config.lookahead_m))
                         for n, m in models.items()}
         self._accel = config.accel_max_mps2
         self._heard: dict[str, tuple[float, float, float]] = {}
@@ -343,6 +479,8 @@ class SafetyGuard:
         """QP failures (the robot was stopped instead)."""
         self.slack_steps = 0
         """Instants at which a barrier could not be met within the limits (slack > 0)."""
+        self.bias_steps = 0
+        """Instants at which the deadlock rule's right-hand bias shaped the command."""
 
     def hear(self, sender: str, position, stamp: float) -> None:
         """Remember the newest position a robot sent (older stamps are ignored)."""
@@ -357,9 +495,9 @@ class SafetyGuard:
     def neighbours(self, now: float) -> list[Neighbour]:
         out = []
         for sender, (x, y, stamp) in sorted(self._heard.items()):
-            r, s = self._bounds[sender]
+            r, s, look = self._bounds[sender]
             age = max(now - stamp, 0.0)
-            nb = Neighbour((x, y), age, r, s)
+            nb = Neighbour((x, y), age, r, s, lookahead=look)
             prev = self._before.get(sender)
             if self._accel is not None and prev is not None:
                 # velocity averaged over [t0, t1] is within accel * (t - t0) of the velocity at
@@ -368,7 +506,7 @@ class SafetyGuard:
                 vx, vy = (x - x0) / (stamp - t0), (y - y0) / (stamp - t0)
                 spread = self._accel * (now - t0) * age
                 if spread < s * age:
-                    nb = Neighbour((x + vx * age, y + vy * age), age, r, s, spread)
+                    nb = Neighbour((x + vx * age, y + vy * age), age, r, s, spread, look)
             out.append(nb)
         return out
 
@@ -380,9 +518,11 @@ class SafetyGuard:
             self.change_max = max(self.change_max, res.change)
             self.qp_failures += int(not res.ok)
             self.slack_steps += int(res.slack > 1e-9)
+            self.bias_steps += int(res.biased)
         return res
 
     def counters(self) -> dict[str, float | int]:
         """Closing counters (``safety_*``) for the robot's stats record."""
         return {"safety_interventions": self.interventions, "safety_change_max": round(self.change_max, 6),
-                "safety_qp_failures": self.qp_failures, "safety_slack_steps": self.slack_steps}
+                "safety_qp_failures": self.qp_failures, "safety_slack_steps": self.slack_steps,
+                "safety_bias_steps": self.bias_steps}

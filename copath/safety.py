@@ -17,25 +17,44 @@ Per robot i and heard neighbour j (centre ``p_j`` from the neighbour's message, 
 
 where ``s_j`` bounds the neighbour's speed, so ``s_j a_j`` is the distance it may have
 moved since it sent its position (with an assumed acceleration bound, a tighter disc around
-its extrapolated position, :class:`SafetyGuard`). A range reading (sensor ring, Sec. 4.4.3) gives a point
-``o`` with the same half condition ``n^T pdot_i >= -(gamma / 2) h``: a static obstacle is
-then only approached more slowly, and a point on another robot, whose own filter sees this
-one too, is covered as a pair. ``pdot_i = G(theta) u`` is linear in the command (omni: the
-body velocities rotated; unicycle: ``v (cos theta, sin theta)``, so only v is ever
-constrained and omega keeps its nominal value), so the filter is the QP
+its extrapolated position, :class:`SafetyGuard`). A range reading (sensor ring, Sec. 4.4.3)
+gives a point ``o`` with the same half condition ``n^T pdot_i >= -(gamma / 2) h``: a static
+obstacle is then only approached more slowly, and a point on another robot, whose own filter
+sees this one too, is covered as a pair. ``pdot_i = G(theta) u`` is linear in the command
+(omni: the body velocities rotated; unicycle: ``v (cos theta, sin theta)``, so these rows
+constrain only v of a unicycle).
 
-    min_u (u - u_nom)^T W (u - u_nom) + rho (sigma + sigma^2)
-    s.t.  n^T G u + sigma >= -gamma_share h   (every barrier),  sigma >= 0,
+A unicycle also steers: its look-ahead point ``z_i = p_i + l (cos theta, sin theta)`` moves
+with ``zdot = T(theta) (v, omega)``, T invertible for l > 0 (the mapping of the Robotarium's
+``create_unicycle_barrier_certificate``). A neighbour's heading is not in its messages, so
+its look-ahead point is only known to lie within ``l_j`` of its centre; the look-ahead rows
+
+    h_z = ||z_i - p_j|| - (r_i + r_j + margin + s_j a_j + l_i + l_j),
+    n_z^T zdot_i >= -(gamma / 2) h_z
+
+keep the centres apart whenever h_z >= 0 (``||p_i - p_j|| >= ||z_i - p_j|| - l_i``). They
+are soft (a slack of their own) and not clamped (a look-ahead point inside its disc is pushed
+out gently), while the centre rows stay hard: those carry the guarantee. The filter is the QP
+
+    min_u (u - u_ref)^T W (u - u_ref) + rho (sigma + sigma^2) + rho_z (sigma_z + sigma_z^2)
+    s.t.  n^T G u + sigma >= -gamma_share max(h, 0)   (centre rows, range readings),
+          n_z^T T u + sigma_z >= -gamma_share h_z      (look-ahead rows),  sigma, sigma_z >= 0,
           model limits (omni wheel speeds (3.2); unicycle |v| <= v_max, |omega| <= omega_max),
           optional speed cap |pdot| <= speed_max_mps,
 
-solved by CasADi's ``conic`` interface with DAQP. A barrier already crossed (h < 0: an
-overlapping start, or a stale neighbour's grown disc) only forbids closing in further
-(h is clamped at 0), so stopping (u = 0) always satisfies every barrier; the slack
-``sigma`` (exact penalty) is a guard that keeps the QP solvable whatever the numbers. A
-nominal command that already satisfies every barrier (after the model's own saturation) is
-returned unchanged: the filter is inactive, and bit for bit invisible, away from other
-robots.
+solved by CasADi's ``conic`` interface with DAQP, with ``u_ref`` the nominal command. A centre
+barrier already crossed (h < 0: an overlapping start, or a stale neighbour's grown disc) only
+forbids closing in further (h clamped at 0), so stopping (u = 0) always satisfies every hard
+row; the slack ``sigma`` (exact penalty) is a guard that keeps the QP solvable whatever the
+numbers. A nominal command that already satisfies every row (after the model's own
+saturation) is returned unchanged: the filter is inactive, and bit for bit invisible, away
+from other robots.
+
+Deadlock rule (after Wang, Ames and Egerstedt 2017, Sec. VI): when a barrier slows the
+robot, the QP is solved once more with ``u_ref`` the nominal velocity of the steered point
+turned to the right by ``deadlock_turn_rad``; fixed and decentralised, so symmetric jams
+(twelve robots crossing a circle) unwind into a roundabout and lockstep runs stay
+reproducible.
 
 The derivation, the chosen constants and the guarantee are written out in
 ``docs/safety.md``. The filter is pure: no clock, no transport; the runtime times it.
@@ -88,11 +107,13 @@ class SafetyConfig:
     """Unicycles: distance l of the look-ahead point z = p + l (cos theta, sin theta) whose
     velocity the filter shapes, so it can steer as well as brake [m]; 0 filters v only
     (chosen: 0.05 m, the Robotarium's projection distance)."""
-    deadlock_turn_rad: float = 1.2
-    """Deadlock rule: while the filter slows the robot, its QP aims at the nominal velocity of
+    deadlock_turn_rad: float | None = None
+    """Deadlock rule: while a barrier slows the robot, its QP aims at the nominal velocity of
     the steered point (a unicycle's look-ahead point, an omni robot's centre) turned to the
-    right by this angle [rad], same speed; 0 switches the rule off (chosen: 1.2 rad, the
-    circle swap completes clean and under delay and loss, docs/safety.md)."""
+    right by this angle [rad], same speed; 0 switches the rule off. None: 1.2 rad for
+    unicycles (chosen: the circle swap completes clean and under delay and loss), 0 for omni
+    robots (they can sidestep; the rule would cost E5.1 its formation under faults);
+    docs/safety.md."""
 
     def __post_init__(self) -> None:
         require(self.gamma is None or self.gamma > 0, "safety.gamma", self.gamma, "must be > 0")
@@ -105,7 +126,8 @@ class SafetyConfig:
         require(self.slack_weight > 0, "safety.slack_weight", self.slack_weight, "must be > 0")
         require(math.isfinite(self.lookahead_m) and self.lookahead_m >= 0, "safety.lookahead_m",
                 self.lookahead_m, "must be >= 0 (0: the filter changes only v of a unicycle)")
-        require(math.isfinite(self.deadlock_turn_rad) and 0 <= self.deadlock_turn_rad <= math.pi / 2,
+        require(self.deadlock_turn_rad is None or (math.isfinite(self.deadlock_turn_rad)
+                                                    and 0 <= self.deadlock_turn_rad <= math.pi / 2),
                 "safety.deadlock_turn_rad", self.deadlock_turn_rad, "must be in [0, pi/2] (0: no deadlock rule)")
 
 
@@ -169,10 +191,14 @@ LOOKAHEAD_RECOVERY = 0.25
 """A look-ahead point inside its inflated disc (h_z < 0) is pushed out at this fraction of the
 rate gamma / 2 |h_z| (chosen: gentle, so stale, jumping positions do not make it chatter)."""
 
-BIAS_BELOW = 1.0
-"""The deadlock rule applies when the filtered command moves the steered point at less than this
-fraction of the nominal command's speed (chosen: 1, whenever the filter slows the robot; at
-0.2, "nearly stopped", the twelve robots of the circle swap close every gap first and jam)."""
+UNICYCLE_TURN_RAD = 1.2
+"""Default turn of the deadlock rule for unicycles [rad] (chosen, docs/safety.md)."""
+
+SLOWED = 1.0 - 1e-6
+"""The deadlock rule applies when a barrier leaves the robot's steered point less than this
+fraction of its nominal speed (chosen: whenever a barrier slows it; with 0.2 or 0.5, "nearly
+stopped", the twelve robots of the circle swap close their gaps first and jam under delay and
+loss)."""
 
 _OCTAGON = np.array([[math.cos(a), math.sin(a)] for a in np.arange(4) * math.pi / 4])
 _COS8 = math.cos(math.pi / 8)
@@ -207,6 +233,9 @@ class SafetyFilter:
         self.r_eff = model.radius
         self.lookahead = 0.0 if self.omni else float(config.lookahead_m)
         """Look-ahead distance l of this robot [m] (0: omni, or a unicycle filtering v only)."""
+        turn = config.deadlock_turn_rad
+        self.turn = float(turn) if turn is not None else (0.0 if self.omni else UNICYCLE_TURN_RAD)
+        """Deadlock rule's turn of the reference [rad] (0: off)."""
         # command-space weight W: wheel-speed scale for the turn rate (L_w, or the half axle b);
         # a unicycle with a look-ahead point: |zdot - zdot_nom|^2 = (u - u_nom)^T diag(1, l^2) (u - u_nom)
         if self.omni:
@@ -360,11 +389,10 @@ class SafetyFilter:
             return self.lookahead_map(theta) @ np.asarray(u, dtype=float)[:2]
         return self.centre_velocity_map(theta) @ np.asarray(u, dtype=float)
 
-    def biased_reference(self, u_nom, theta: float) -> np.ndarray | None:
-        """The nominal command with its steered velocity turned right by ``deadlock_turn_rad``
-        (the deadlock rule); None when that cannot be expressed (a unicycle with l = 0, or a
-        nominal that does not move)."""
-        psi = self.config.deadlock_turn_rad
+    def biased_reference(self, u_nom, theta: float, psi: float) -> np.ndarray | None:
+        """The nominal command with its steered velocity turned right by ``psi`` [rad] (the
+        deadlock rule); None when that cannot be expressed (a unicycle with l = 0, or a nominal
+        that does not move)."""
         if not psi or (not self.omni and not self.lookahead):
             return None
         nu = self.steered_velocity(u_nom, theta)
@@ -380,9 +408,10 @@ class SafetyFilter:
     def filter(self, pose, nominal, neighbours: Sequence[Neighbour] = (), ranges=None, angles=None) -> SafetyResult:
         """Minimally modify ``nominal`` so every barrier holds; return it unchanged if they do.
 
-        When the solution slows the robot (its steered point's speed below ``BIAS_BELOW`` times
-        the nominal's), the QP is solved once more towards the nominal turned right
-        (:meth:`biased_reference`): a fixed, decentralised rule that breaks symmetric deadlocks
+        When the solution slows the robot (its steered point's speed is a fraction r < 1 of the
+        nominal's), the QP is solved once more towards the nominal turned right by
+        ``deadlock_turn_rad * (1 - r)`` (:meth:`biased_reference`): a fixed, decentralised rule
+        that breaks symmetric deadlocks, barely touches a robot that is only slowed a little,
         and keeps lockstep runs reproducible."""
         u_nom = np.asarray(nominal, dtype=float).reshape(self.m)
         A, rhs, soft, h_min = self.constraints(pose, neighbours, ranges, angles)
@@ -394,8 +423,10 @@ class SafetyFilter:
         u, sigma, ok = self._solve(A, rhs, u_sat, soft)
         biased = False
         speed_nom = float(np.hypot(*self.steered_velocity(u_sat, th)))
-        if ok and float(np.hypot(*self.steered_velocity(u, th))) < BIAS_BELOW * speed_nom * (1 - 1e-9):
-            ref = self.biased_reference(u_sat, th)
+        ratio = float(np.hypot(*self.steered_velocity(u, th))) / speed_nom if speed_nom > 1e-9 else 1.0
+        blocked = bool(np.any(A @ u_sat < rhs - 1e-12))  # a barrier, not only the speed cap
+        if ok and blocked and ratio < SLOWED:
+            ref = self.biased_reference(u_sat, th, self.turn)
             if ref is not None:
                 ub, sb, okb = self._solve(A, rhs, ref, soft)
                 if okb:

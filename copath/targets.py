@@ -35,6 +35,7 @@ TARGETS: dict[str, tuple[str, str]] = {
     "missed_ticks": ("robots", AT_MOST),
     "wheel_speed_max_mps": ("robots", AT_MOST),
     "solver_failures": ("robots", AT_MOST),
+    "path_progress_m": ("robots", AT_LEAST),
     # fleet
     "coordination_error_max_m": ("fleet", AT_MOST),
     "coordination_error_rms_m": ("fleet", AT_MOST),

@@ -33,6 +33,8 @@ from copath.wire.keys import Keys
 from copath.wire.messages import Command, End, Estimate, Event, Stats, Telemetry, Truth
 
 from .metrics_estimation import ESTIMATION_KEYS, estimation_metrics
+from copath.slots import track_coordinate
+
 from .metrics_truth import cross_track_series, team_geometry, truth_metrics, truth_series
 
 __all__ = ["RobotTrace", "Trace", "trace_from_records", "compute_metrics", "metrics_from_log", "METRIC_KEYS"]
@@ -61,6 +63,9 @@ ROBOT_KEYS = ROBOT_KEYS + ("messages_rejected",)
 # realtime clock: control periods whose step ended after the next period had begun, from the
 # robot's closing account; null in lockstep (where the simulator counts missed_ticks)
 ROBOT_KEYS = ROBOT_KEYS + ("deadline_misses",)
+# the path coordinate s (M1) of the true position at the run's end; null without a path
+# (docs/metrics.md, M4b)
+ROBOT_KEYS = ROBOT_KEYS + ("path_progress_m",)
 FLEET_KEYS = (
     "coordination_error_max_m",
     "coordination_error_rms_m",
@@ -335,6 +340,15 @@ def compute_metrics(
         if n in robots and len(e):
             robots[n]["cross_track_error_max_m"] = _f(e.max())
             robots[n]["cross_track_error_rms_m"] = _f(np.sqrt(np.mean(e**2)))
+    paths = dict(geometry.paths) if geometry is not None else {
+        r.name: scenario.paths[r.path] for r in scenario.robots if r.path}
+    for n, path in paths.items():
+        rt = trace.robots.get(n)
+        if n in robots and rt is not None and len(rt.t):
+            known = series.s.get(n) if series is not None else None
+            if known is None or len(known) != len(rt.t):
+                known = track_coordinate(path, np.asarray(rt.pose)[:, :2])
+            robots[n]["path_progress_m"] = _f(known[-1])
     fleet: dict[str, Any] = dict.fromkeys(FLEET_KEYS)
     fleet.update(truth_metrics(trace, scenario, series))
     fleet["coordination_error_max_reported_m"], fleet["coordination_error_rms_reported_m"] = \

@@ -53,15 +53,27 @@ def test_five_robot_dmpc_with_delay_and_loss_keeps_apart():
 
 
 @pytest.mark.parametrize("network", [None, FAULTS])
-def test_twelve_unicycles_crossing_a_circle_never_collide(network):
+def test_twelve_unicycles_swap_places_across_a_circle_without_colliding(network):
     s = load_scenario(config("e5.6-circle-swap"))
     over = {"network": network} if network else {}
     off = run_scenario(s.with_overrides(safety={"enabled": False}, **over), duration_s=10.0).metrics
-    on = run_scenario(s.with_overrides(**over), duration_s=10.0).metrics
+    on = run_scenario(s.with_overrides(**over)).metrics
     assert off["fleet"]["collisions"] >= 12  # all twelve meet at the centre
     assert on["fleet"]["collisions"] == 0
     assert on["fleet"]["min_separation_m"] >= 0.12
+    # the swap completes: steering round each other (look-ahead point, right-hand rule),
+    # every robot reaches the start of the robot opposite it (s = 3 m) within the run
+    assert all(r["path_progress_m"] >= 3.0 for r in on["robots"].values())
     assert all(r["safety_interventions"] > 0 for r in on["robots"].values())
+    assert all(r["limit_violations"] == 0 for r in on["robots"].values())
+
+
+def test_circle_swap_without_the_deadlock_rule_stops_in_a_ring():
+    # the same filter with the right-hand rule off: safe, but the robots stop round the centre
+    s = load_scenario(config("e5.6-circle-swap"))
+    m = run_scenario(s.with_overrides(safety={"enabled": True, "deadlock_turn_rad": 0.0}), duration_s=25.0).metrics
+    assert m["fleet"]["collisions"] == 0
+    assert all(r["path_progress_m"] < 1.5 for r in m["robots"].values())  # none past the centre
 
 
 # -- user controllers, unchanged: drive straight along the heading at 0.5 m/s -------------

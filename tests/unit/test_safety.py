@@ -81,10 +81,12 @@ def test_head_on_with_stale_positions_is_kept_apart():
     assert dmin >= 2 * model.radius
 
 
-def test_unicycle_filter_changes_only_the_forward_speed():
-    # the centre of a unicycle moves along its heading: the barrier constrains v, omega stays nominal
+def test_unicycle_filter_without_lookahead_changes_only_the_forward_speed():
+    # lookahead_m = 0: the centre of a unicycle moves along its heading, so the barrier constrains
+    # v and omega stays nominal
     model = UnicycleModel()
-    dmin, results = _pair_run(model, [0.3, 0.1], [0.0, 0.02, 0.0], [0.6, 0.0, math.pi], 0.1, 60)
+    cfg = SafetyConfig(enabled=True, lookahead_m=0.0)
+    dmin, results = _pair_run(model, [0.3, 0.1], [0.0, 0.02, 0.0], [0.6, 0.0, math.pi], 0.1, 60, cfg)
     assert dmin >= 2 * model.radius
     active = [r for r in results if r.active]
     assert active and all(r.command[1] == pytest.approx(0.1, abs=1e-6) for r in active)
@@ -188,3 +190,88 @@ def test_guard_extrapolates_with_an_acceleration_bound():
     assert nb1.position == (1.05, 0.0) and nb1.spread is None  # speed bound only: 0.4 m
     f = g.filter
     assert f.barriers([0, 0, 0], [nb])[1][0] == pytest.approx(1.15 - 0.4 - CFG.margin_m - 0.06)
+
+
+def test_unicycles_driving_head_on_steer_round_each_other():
+    # with the look-ahead point the filter also changes omega; the deadlock rule turns both to
+    # their right, so they pass each other instead of stopping nose to nose
+    model = UnicycleModel(v_max=0.5, omega_max=1.0)
+    dmin, results = _pair_run(model, [0.3, 0.0], [0.0, 0.0, 0.0], [2.0, 0.0, math.pi], 0.1, 150)
+    assert dmin >= 2 * model.radius
+    active = [r for r in results if r.active]
+    assert any(abs(r.command[1]) > 0.1 for r in active)  # it steered
+    assert any(r.biased for r in active)
+    # and they get past each other (each ends beyond the other's start), discs apart all along
+    assert _passes(model, CFG, np.array([0.0, 0.0, 0.0]), np.array([2.0, 0.0, math.pi]))
+
+
+def _passes(model, cfg, pa, pb, steps=150, dt=0.1):
+    """Two unicycles driving at each other: True when each ends beyond the other's start."""
+    fa, fb = SafetyFilter(cfg, model, dt), SafetyFilter(cfg, model, dt)
+    s = max_speed(model)
+    pa, pb = pa.copy(), pb.copy()
+    prev_a, prev_b = pa.copy(), pb.copy()
+    for _ in range(steps):
+        ra = fa.filter(pa, [0.3, 0.0], [Neighbour(tuple(prev_b[:2]), dt, model.radius, s, lookahead=0.05)])
+        rb = fb.filter(pb, [0.3, 0.0], [Neighbour(tuple(prev_a[:2]), dt, model.radius, s, lookahead=0.05)])
+        prev_a, prev_b = pa.copy(), pb.copy()
+        pa = model.step(pa, model.saturate(ra.command)[0], dt)
+        pb = model.step(pb, model.saturate(rb.command)[0], dt)
+        assert np.hypot(*(pa[:2] - pb[:2])) >= 2 * model.radius
+    return bool(pa[0] > 2.0 and pb[0] < 0.0)
+
+
+def test_lookahead_barrier_bound_keeps_centres_apart():
+    # h_z = ||z_i - p_j|| - (r_i + r_j + margin + spread + l_i + l_j) >= 0 implies
+    # ||p_i - p_j|| >= ||z_i - p_j|| - l_i >= r_i + r_j + margin (docs/safety.md)
+    rng = np.random.default_rng(3)
+    model = UnicycleModel()
+    f = SafetyFilter(CFG, model, 0.1)
+    lk = f.lookahead
+    assert lk == pytest.approx(CFG.lookahead_m)
+    for _ in range(200):
+        pose = np.r_[rng.uniform(-0.5, 0.5, 2), rng.uniform(-math.pi, math.pi)]
+        nb = Neighbour(tuple(rng.uniform(-0.5, 0.5, 2)), 0.1, 0.06, 0.5, lookahead=lk)
+        n, hz = f.lookahead_barriers(pose, [nb])
+        z = pose[:2] + lk * np.array([math.cos(pose[2]), math.sin(pose[2])])
+        d = np.hypot(*(z - nb.position))
+        assert hz[0] == pytest.approx(d - (model.radius + 0.06 + CFG.margin_m + 0.05 + 2 * lk))
+        assert n[0] == pytest.approx((z - nb.position) / d)
+        if hz[0] >= 0:
+            assert np.hypot(*(pose[:2] - nb.position)) >= model.radius + 0.06 + CFG.margin_m
+    # the look-ahead map is the Robotarium's uni_to_si: zdot = T(theta) (v, omega)
+    th = 0.7
+    T = f.lookahead_map(th)
+    assert T @ [0.2, 0.0] == pytest.approx([0.2 * math.cos(th), 0.2 * math.sin(th)])
+    assert T @ [0.0, 1.0] == pytest.approx([-lk * math.sin(th), lk * math.cos(th)])
+
+
+def test_unicycle_safe_nominal_near_a_neighbour_passes_unchanged():
+    # driving away from a close neighbour, look-ahead rows included: nothing to do
+    f = SafetyFilter(CFG, UnicycleModel(), 0.1)
+    res = f.filter([0.0, 0.0, 0.0], [0.3, 0.2], [Neighbour((-0.25, 0.0), 0.1, 0.06, 0.5, lookahead=0.05)])
+    assert not res.active and not res.biased and np.array_equal(res.command, [0.3, 0.2])
+
+
+def test_deadlock_rule_turns_right_and_is_deterministic():
+    model = UnicycleModel(v_max=0.5, omega_max=1.0)
+    f = SafetyFilter(CFG, model, 0.1)
+    nb = [Neighbour((0.3, 0.0), 0.1, 0.06, 0.5, lookahead=0.05)]  # straight ahead, close
+    a = f.filter([0.0, 0.0, 0.0], [0.3, 0.0], nb)
+    b = SafetyFilter(CFG, model, 0.1).filter([0.0, 0.0, 0.0], [0.3, 0.0], nb)
+    assert a.active and a.biased and np.array_equal(a.command, b.command)
+    assert a.command[1] < 0  # heading +x, the right is -y: a clockwise turn
+    assert abs(a.command[0]) <= model.v_max + 1e-9 and abs(a.command[1]) <= model.omega_max + 1e-9
+    off = SafetyFilter(SafetyConfig(enabled=True, deadlock_turn_rad=0.0), model, 0.1)
+    c = off.filter([0.0, 0.0, 0.0], [0.3, 0.0], nb)
+    assert c.active and not c.biased and abs(c.command[1]) < 1e-6  # symmetric: no reason to turn
+    # omni robots: off unless asked for
+    assert SafetyFilter(CFG, OmniModel(), 0.05).turn == 0.0
+    assert SafetyFilter(SafetyConfig(enabled=True, deadlock_turn_rad=0.5), OmniModel(), 0.05).turn == 0.5
+
+
+def test_lookahead_config_errors():
+    with pytest.raises(ConfigError, match=r"safety.lookahead_m = -0.1 is not allowed; must be >= 0"):
+        from_table(SafetyConfig, {"lookahead_m": -0.1}, "safety")
+    with pytest.raises(ConfigError, match=r"safety.deadlock_turn_rad = 2.0 is not allowed; must be in \[0, pi/2\]"):
+        from_table(SafetyConfig, {"deadlock_turn_rad": 2.0}, "safety")

@@ -106,3 +106,32 @@ def test_a_neighbour_is_predicted_exactly_under_constant_acceleration():
     (m,) = neighbour_states([got], t, xi=0.0, coordinate=coord, predict_acceleration=False)
     assert m.xi == pytest.approx(s0 + v0 - 0.5) and m.weight == 1.0
     assert math.isclose(m.sdot, v0)
+
+
+# --- (6.16) under delay ---
+
+def _pi_decay_steps(delay_steps: int, rates: bool, dt: float = 0.1) -> int:
+    """Steps until both robots of a pair, both finished (w = 0), have z <= 0.1."""
+    from agent.controllers.roles.consensus import PIConsensus
+
+    pis = [PIConsensus(k_z=0.5, k_p=8.0, k_i=4.0) for _ in range(2)]
+    sent: list[list[tuple]] = [[], []]
+    for k in range(2000):
+        for i, pi in enumerate(pis):
+            old = sent[1 - i][k - delay_steps] if k - delay_steps >= 0 else (1.0, 0.0, 1, 0.0, 0.0)
+            z, eta, deg, zdot, etadot = old
+            entry = (z, eta, deg, zdot, etadot, delay_steps * dt) if rates else (z, eta, deg)
+            pi.step(0.0, [entry], dt)
+        for i, pi in enumerate(pis):
+            sent[i].append((pi.z, pi.eta, 1, pi.zdot, pi.etadot))
+        if all(pi.z <= 0.1 for pi in pis):
+            return k + 1
+    return 2000
+
+
+def test_task_sequencing_consensus_decays_at_its_own_rate_under_delay():
+    undelayed = _pi_decay_steps(1, rates=False)
+    plain = _pi_decay_steps(5, rates=False)
+    predicted = _pi_decay_steps(5, rates=True)
+    assert plain > 2 * undelayed  # the stale z_j holds the team back (docs/envelope.md)
+    assert predicted <= 1.3 * undelayed

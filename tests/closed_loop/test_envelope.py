@@ -68,10 +68,9 @@ def test_e65_completes_every_formation_within_60_s_at_300_ms_and_30_percent_loss
 
 
 @pytest.mark.slow
-def test_e65_keeps_switching_formations_at_500_ms_and_half_the_messages_lost(tmp_path):
-    # the agreement and (6.16) no longer stall (0 of 3 formations before); what remains at
-    # this cell is the negotiation of Algorithm 6.2 (docs/envelope.md)
+def test_e65_completes_every_formation_within_120_s_at_500_ms_and_half_the_messages_lost(tmp_path):
+    # the controller's own envelope: with the bundled filter the stale neighbour discs keep
+    # the robots off their targets at this cell (docs/envelope.md)
     cells = _grid(tmp_path, "e6.5-roles-six-robots-x", [(500, 0.5)], seeds=(1, 2),
-                  fixed=["run.duration_s=60", *NO_FILTER])
-    assert cells[(500.0, 0.5)].worst >= 2
-    assert cells[(500.0, 0.5)].mean >= 2.5
+                  fixed=["run.duration_s=120", *NO_FILTER])
+    assert cells[(500.0, 0.5)].worst == 3

@@ -316,7 +316,12 @@ class Assignment:
         for q in same.values():
             for r in q.payload.get("rulings") or []:
                 if len(r) == 3 and self.name in (r[1], r[2]):
-                    incoming.append(Ruling(int(r[0]), str(r[1]), str(r[2])))
+                    ruling = Ruling(int(r[0]), str(r[1]), str(r[2]))
+                    winner = same.get(ruling.winner)
+                    if (ruling.loser == self.name and winner is not None
+                            and int(winner.payload.get("claim", -1)) != ruling.position):
+                        continue  # the winner has left the position since: an outdated ruling (delay)
+                    incoming.append(ruling)
         return self.book.lost(incoming)
 
     def resolve_conflicts(self, same: dict[str, Peer], p: np.ndarray, t: float) -> tuple[bool, bool]:
@@ -334,6 +339,7 @@ class Assignment:
             return False, False
         rulings, waiting = self.book.negotiate(self.distance(p), conflicts)
         for r in rulings:
+            self.rulings_out.pop((r.position, r.loser, r.winner), None)  # a reversed ruling withdraws the old one
             self.rulings_out[(r.position, r.winner, r.loser)] = t
         if any(r.loser == self.name for r in rulings):
             return False, True

@@ -215,8 +215,8 @@ class SafetyFilter:
     dt : float
         Control period [s]; gamma * dt must not exceed 1.
     capacity : int
-        Number of barrier rows to build the QP for up front (neighbours + range readings);
-        more rows rebuild it once, larger.
+        Number of barrier rows to build the QP for up front (neighbours, their look-ahead rows
+        for a unicycle, range readings); more rows rebuild it once, larger.
     """
 
     def __init__(self, config: SafetyConfig, model: OmniModel | UnicycleModel, dt: float,
@@ -493,8 +493,10 @@ class SafetyGuard:
     def __init__(self, config: SafetyConfig, name: str, models: Mapping[str, OmniModel | UnicycleModel],
                  dt: float, sensor_count: int = 0) -> None:
         self.name = name
-        rows = len(models) - 1 + (sensor_count if config.use_ranges else 0)
-        self.filter = SafetyFilter(config, models[name], dt, capacity=rows)
+        own = models[name]
+        per_robot = 2 if isinstance(own, UnicycleModel) and config.lookahead_m > 0 else 1  # + look-ahead rows
+        rows = per_robot * (len(models) - 1) + (sensor_count if config.use_ranges else 0)
+        self.filter = SafetyFilter(config, own, dt, capacity=rows)
         cap = config.speed_max_mps
         self._bounds = {n: (m.radius, max_speed(m) if cap is None else min(cap, max_speed(m)),
                             0.0 if isinstance(m, OmniModel) else float(config.lookahead_m))

@@ -5,7 +5,10 @@
 For an omni robot and a unicycle with ``--neighbours`` heard robots, it times
 :meth:`SafetyFilter.filter` on random poses where the nominal command is safe (the filter
 returns it unchanged) and where it is not (the barrier QP is solved with DAQP), and prints
-p50 / p99 / max in milliseconds. The QP is built before timing, as the runtime does.
+p50 / p99 / max in milliseconds. The QP is built before timing, as the runtime does. The
+unicycle is timed with its look-ahead rows and deadlock rule (the default: one neighbour
+straight ahead makes the filter solve the QP twice, the second time towards the nominal
+turned right) and, as ``unicycle-v``, with ``lookahead_m = 0`` (centre rows only, v only).
 """
 
 from __future__ import annotations
@@ -40,8 +43,11 @@ def _cases(model, n_nb: int, calls: int, rng: np.random.Generator, close: bool):
 def bench(calls: int = 2000, neighbours: int = 15, seed: int = 0) -> dict:
     rng = np.random.default_rng(seed)
     out = {}
-    for model, dt in ((OmniModel(), 0.05), (UnicycleModel(), 0.1)):
-        f = SafetyFilter(SafetyConfig(enabled=True), model, dt, capacity=neighbours)
+    on = SafetyConfig(enabled=True)
+    cases = ((OmniModel(), 0.05, on, "omni"), (UnicycleModel(), 0.1, on, "unicycle"),
+             (UnicycleModel(), 0.1, SafetyConfig(enabled=True, lookahead_m=0.0), "unicycle-v"))
+    for model, dt, cfg, label in cases:
+        f = SafetyFilter(cfg, model, dt, capacity=2 * neighbours)  # room for look-ahead rows
         for close in (False, True):
             times = []
             active = 0
@@ -51,7 +57,7 @@ def bench(calls: int = 2000, neighbours: int = 15, seed: int = 0) -> dict:
                 times.append((time.perf_counter() - t0) * 1e3)
                 active += res.active
             ms = np.array(times)
-            out[f"{model.kind}/{'qp' if close else 'pass'}"] = {
+            out[f"{label}/{'qp' if close else 'pass'}"] = {
                 "p50_ms": round(float(np.percentile(ms, 50)), 4),
                 "p99_ms": round(float(np.percentile(ms, 99)), 4),
                 "max_ms": round(float(ms.max()), 4),

@@ -8,7 +8,8 @@ timer of ``run.dt`` (default 0.05 s), exchanging assumed trajectories over Zenoh
 the recorded log the benchmark prints, per fleet size, the achieved update period
 (differences of consecutive controller step times, all robots pooled: p50/p99), the
 controller step time (p50/p99), the deadline misses counted by the agents (a step that
-ended after its next start time), and the coordination error after settling.
+ended after its next start time), the coordination error after settling and the start-up
+time (call to the first tick: every robot built its controller and declared itself ready).
 
 The dissertation's implementation reached an average update period of about 0.12 s
 (E5.2) with three robots.
@@ -81,6 +82,7 @@ def _pct(x: np.ndarray, q: float) -> float:
 def _measure(n: int, args: argparse.Namespace, root: pathlib.Path) -> dict[str, Any]:
     from copath.wire.keys import Keys
 
+    from .bench_fleet import _startup_s
     from .fleet import RunOptions, new_run_id, run_fleet
     from .mcaplog import read_log
     from .metrics import trace_from_records
@@ -88,6 +90,7 @@ def _measure(n: int, args: argparse.Namespace, root: pathlib.Path) -> dict[str, 
     settle = min(args.settle, 0.5 * args.duration)
     scenario = parse_scenario(scenario_table(n, args.dt, args.duration, args.horizon, settle))
     run_id = new_run_id(f"bench-dmpc-{n}")
+    t_call = time.time()
     t0 = time.monotonic()
     outcome = run_fleet(scenario, RunOptions(out_dir=root / run_id, run_id=run_id, progress=not args.quiet))
     wall = time.monotonic() - t0
@@ -117,6 +120,7 @@ def _measure(n: int, args: argparse.Namespace, root: pathlib.Path) -> dict[str, 
         "coord": (m.get("fleet") or {}).get("coordination_error_max_m"),
         "failures": sum(int(r.get("solver_failures") or 0) for r in (m.get("robots") or {}).values()),
         "wall": wall,
+        "startup_s": _startup_s(outcome.out_dir, t_call),
     }
 
 
@@ -146,7 +150,7 @@ def _table(result: dict[str, Any], args: argparse.Namespace) -> None:
     print(f"DMPC over Zenoh, realtime, target period {args.dt * 1e3:.0f} ms, horizon {args.horizon}, "
           f"{args.duration:.0f} s simulated per run")
     head = (f"{'robots':>6} {'period p50':>11} {'period p99':>11} {'step p50':>9} {'step p99':>9} "
-            f"{'misses':>13} {'coord max m':>12} {'solver fail':>12} {'wall s':>7}")
+            f"{'misses':>13} {'coord max m':>12} {'solver fail':>12} {'wall s':>7} {'startup s':>9}")
     print(head)
     print("-" * len(head))
     for r in rows:
@@ -154,7 +158,8 @@ def _table(result: dict[str, Any], args: argparse.Namespace) -> None:
         coord = "-" if r["coord"] is None else f"{r['coord']:.4f}"
         g = {k: (nan if r[k] is None else r[k]) for k in ("period_p50", "period_p99", "step_p50", "step_p99")}
         print(f"{r['n']:>6} {g['period_p50']:>9.1f}ms {g['period_p99']:>9.1f}ms {g['step_p50']:>7.2f}ms "
-              f"{g['step_p99']:>7.2f}ms {miss:>13} {coord:>12} {r['failures']:>12} {r['wall']:>7.1f}")
+              f"{g['step_p99']:>7.2f}ms {miss:>13} {coord:>12} {r['failures']:>12} {r['wall']:>7.1f} "
+              f"{'-' if r['startup_s'] is None else format(r['startup_s'], '.1f'):>9}")
         if not r["ok"]:
             print(f"       run failed: {r['reason']}")
     if result["kept_in"]:

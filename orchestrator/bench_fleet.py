@@ -28,6 +28,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--scenarios", nargs="+", default=["e5.4", "e6.1"], metavar="SCENARIO",
                         help="bundled stems, experiment ids or files [e5.4 e6.1]")
     parser.add_argument("--duration", type=float, metavar="S", help="simulated seconds (default: the scenario's)")
+    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                        help="override a scenario value (TOML literal), as copath run --set; repeatable")
     parser.add_argument("--no-fleet", action="store_true", help="in-process only")
     parser.add_argument("--no-inprocess", action="store_true", help="fleet only")
     parser.add_argument("--out", help="keep the fleet runs here (default: a temporary directory, removed)")
@@ -47,8 +49,8 @@ def _startup_s(out: pathlib.Path, t_call: float) -> float | None:
 def measure(name: str, args: argparse.Namespace, root: pathlib.Path) -> dict[str, Any]:
     from . import api  # noqa: PLC0415
 
-    overrides = [f"run.duration_s={args.duration}"] if args.duration else []
-    if args.duration and api.load(name).run.settle_s >= args.duration:  # errors after half the short run
+    overrides = list(args.set) + ([f"run.duration_s={args.duration}"] if args.duration else [])
+    if args.duration and api.load(name, list(args.set)).run.settle_s >= args.duration:  # errors after half the short run
         overrides.append(f"run.settle_s={0.5 * args.duration}")
     sc = api.load(name, overrides)
     row: dict[str, Any] = {"scenario": sc.id, "robots": len(sc.robots), "until": sc.run.until, "ok": True}

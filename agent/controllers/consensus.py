@@ -6,6 +6,11 @@ common group speed v_0 and drives s_i - s_j to s_dij = s_di - s_dj over an undir
 connected graph (Theorem 8). The unicycle tracks the virtual vehicle with (5.39)-(5.40)
 and the transient heading shaping delta(y_e) of [211].
 
+Neighbour messages are old when they arrive: each carries the sender's acceleration, the
+receiver predicts the neighbour over the message age, and beyond ``age_nominal_s`` the
+coupling gains of (5.42) are scheduled on that age, so the law keeps working at a second
+of delay and half the messages lost (docs/envelope.md).
+
 The reusable pieces (errors (5.33), the tracking law (5.39)-(5.40) with the closed-form
 delta-dot of docs/ambiguities.md, A18, the consensus acceleration (5.42)) are module functions so
 other controllers (heterogeneous team, formation switching) call them instead of

@@ -221,7 +221,14 @@ class LTVPathFollowingQP:
         H = ca.densify(0.5 * (H + H.T))
         opts = jit_options() if jit and jit_available() else {}
         try:
-            self._condense = ca.Function(f"{name}_condense", [xe, kap, uR], [H, f], opts)
+            if opts:  # compiled once per machine (copath.solver_cache), keyed by the condensing's expressions
+                from copath import solver_cache  # noqa: PLC0415
+
+                key = solver_cache.solver_key(ca.Function("condense", [xe, kap, uR], [H, f]).serialize(), repr(opts))
+                self._condense = solver_cache.cached_function(
+                    "condense", key, lambda: ca.Function(f"{name}_condense", [xe, kap, uR], [H, f], opts))
+            else:
+                self._condense = ca.Function(f"{name}_condense", [xe, kap, uR], [H, f], opts)
         except Exception as exc:  # compiler trouble: interpret instead
             logger.info("JIT of the LTV condensing failed, using the virtual machine: %s", exc)
             self._condense = ca.Function(f"{name}_condense", [xe, kap, uR], [H, f])

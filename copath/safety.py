@@ -17,10 +17,13 @@ Per robot i and heard neighbour j (centre ``p_j`` from the neighbour's message, 
 
 where ``s_j`` bounds the neighbour's speed, so ``s_j a_j`` is the distance it may have
 moved since it sent its position (with an assumed acceleration bound, a tighter disc around
-its extrapolated position, :class:`SafetyGuard`). A range reading (sensor ring, Sec. 4.4.3)
-gives a point ``o`` with the same half condition ``n^T pdot_i >= -(gamma / 2) h``: a static
-obstacle is then only approached more slowly, and a point on another robot, whose own filter
-sees this one too, is covered as a pair. ``pdot_i = G(theta) u`` is linear in the command
+its extrapolated position, :class:`SafetyGuard`). The true direction to it is then within
+``kappa = 2 sin(asin(rho / d) / 2)`` of ``n_ij`` (``rho`` that distance, ``d`` the heard
+separation), so every neighbour row is tightened to ``n_ij^T pdot_i - kappa |pdot_i|``: two
+rows (both signs of v) for a unicycle, six (a polygon bound on the speed) for an omni robot.
+A range reading (sensor ring, Sec. 4.4.3) gives a point ``o`` with the same half condition
+``n^T pdot_i >= -(gamma / 2) h``: a static obstacle is then only approached more slowly, and
+a point on another robot, whose own filter sees this one too, is covered as a pair. ``pdot_i = G(theta) u`` is linear in the command
 (omni: the body velocities rotated; unicycle: ``v (cos theta, sin theta)``, so these rows
 constrain only v of a unicycle).
 
@@ -200,6 +203,14 @@ fraction of its nominal speed (chosen: whenever a barrier slows it; with 0.2 or 
 stopped", the twelve robots of the circle swap close their gaps first and jam under delay and
 loss)."""
 
+def _spread(nb: Neighbour) -> float:
+    """Distance the neighbour may be from its heard position now [m]."""
+    return nb.speed_max * max(nb.age, 0.0) if nb.spread is None else nb.spread
+
+
+_DIRS = np.array([[math.cos(a), math.sin(a), 0.0] for a in np.arange(6) * math.pi / 3])
+_COS_DIR = math.cos(math.pi / 6)  # |x| <= max_k c_k^T x / cos(pi / 6) for the six directions c_k
+
 _OCTAGON = np.array([[math.cos(a), math.sin(a)] for a in np.arange(4) * math.pi / 4])
 _COS8 = math.cos(math.pi / 8)
 
@@ -311,9 +322,8 @@ class SafetyFilter:
         for nb in neighbours:
             if nb.age > cfg.max_age_s:
                 continue
-            spread = nb.speed_max * max(nb.age, 0.0) if nb.spread is None else nb.spread
             pts.append(nb.position)
-            dist.append(self.r_eff + nb.radius + cfg.margin_m + spread + self.lookahead + nb.lookahead)
+            dist.append(self.r_eff + nb.radius + cfg.margin_m + _spread(nb) + self.lookahead + nb.lookahead)
         if not pts:
             return np.zeros((0, 2)), np.zeros(0)
         d = z[None, :] - np.asarray(pts, dtype=float)
@@ -331,8 +341,7 @@ class SafetyFilter:
             if nb.age > cfg.max_age_s:
                 continue
             pts.append(nb.position)
-            spread = nb.speed_max * max(nb.age, 0.0) if nb.spread is None else nb.spread
-            dist.append(self.r_eff + nb.radius + cfg.margin_m + spread)
+            dist.append(self.r_eff + nb.radius + cfg.margin_m + _spread(nb))
             gain.append(0.5 * self.gamma)  # its share: the neighbour's filter takes the other half
         if cfg.use_ranges and ranges is not None and angles is not None:
             x, y, th = (float(v) for v in pose)
@@ -352,6 +361,17 @@ class SafetyFilter:
         n = d / np.maximum(norm, 1e-9)[:, None]
         return n, norm - np.asarray(dist), np.asarray(gain)
 
+    def _direction_error(self, pose, neighbours: Sequence[Neighbour]) -> np.ndarray:
+        """kappa_j = |n - n_hat| bound for each neighbour row: 2 sin(asin(min(1, rho / d)) / 2)
+        for a neighbour within rho of its heard centre at distance d."""
+        q = np.array([float(pose[0]), float(pose[1])])
+        heard = [nb for nb in neighbours if nb.age <= self.config.max_age_s]
+        if not heard:
+            return np.zeros(0)
+        d = np.linalg.norm(q[None, :] - np.asarray([nb.position for nb in heard], dtype=float), axis=1)
+        ratio = np.minimum(1.0, np.array([_spread(nb) for nb in heard]) / np.maximum(d, 1e-9))
+        return 2.0 * np.sin(0.5 * np.arcsin(ratio))
+
     def centre_speed(self, u) -> float:
         """Speed of the robot's centre under command u [m/s]."""
         return float(np.hypot(u[0], u[1])) if self.omni else abs(float(u[0]))
@@ -370,8 +390,22 @@ class SafetyFilter:
         n, h, gain = self.barriers(pose, neighbours, ranges, angles)
         A = n @ self.centre_velocity_map(th)  # (k, m): n^T G(theta)
         rhs = -gain * np.maximum(h, 0.0)
-        soft = np.zeros(len(h), dtype=bool)
         h_min = float(h.min()) if len(h) else math.inf
+        # a neighbour heard `spread` ago lies anywhere in a disc of that radius, so the true
+        # normal is within |n - n_hat| <= kappa of the heard one and the true closing rate is
+        # n^T pdot >= n_hat^T pdot - kappa |pdot| (docs/safety.md, "stale directions")
+        kappa = np.zeros(len(h))
+        k_nb = self._direction_error(pose, neighbours)  # the neighbour rows come first
+        kappa[:len(k_nb)] = k_nb
+        if not self.omni:  # |pdot| = |v|: one row for each sign of v, exact
+            A = np.vstack([A - np.c_[kappa, np.zeros(len(h))], A + np.c_[kappa, np.zeros(len(h))]])
+            rhs = np.r_[rhs, rhs]
+        elif np.any(kappa > 0):  # |(u, v)| <= max_k c_k^T (u, v) / cos(pi / K): K rows per neighbour
+            moving = kappa > 0
+            extra = [A[moving] - (kappa[moving] / _COS_DIR)[:, None] * c[None, :] for c in _DIRS]
+            A = np.vstack([A[~moving], *extra])
+            rhs = np.r_[rhs[~moving], np.tile(rhs[moving], len(_DIRS))]
+        soft = np.zeros(len(rhs), dtype=bool)
         if self.lookahead:
             # look-ahead rows are not clamped: a look-ahead point inside its inflated disc is
             # pushed back out (which reopens the gaps a robot needs to steer round the others);
@@ -494,8 +528,10 @@ class SafetyGuard:
                  dt: float, sensor_count: int = 0) -> None:
         self.name = name
         own = models[name]
-        per_robot = 2 if isinstance(own, UnicycleModel) and config.lookahead_m > 0 else 1  # + look-ahead rows
-        rows = per_robot * (len(models) - 1) + (sensor_count if config.use_ranges else 0)
+        # rows per neighbour: omni 6 (stale directions); unicycle 2 (both signs of v), + 1 look-ahead row
+        omni = isinstance(own, OmniModel)
+        per_robot = len(_DIRS) if omni else 2 + int(config.lookahead_m > 0)
+        rows = per_robot * (len(models) - 1) + (sensor_count if config.use_ranges else 0) * (1 if omni else 2)
         self.filter = SafetyFilter(config, own, dt, capacity=rows)
         cap = config.speed_max_mps
         self._bounds = {n: (m.radius, max_speed(m) if cap is None else min(cap, max_speed(m)),

@@ -275,3 +275,28 @@ def test_lookahead_config_errors():
         from_table(SafetyConfig, {"lookahead_m": -0.1}, "safety")
     with pytest.raises(ConfigError, match=r"safety.deadlock_turn_rad = 2.0 is not allowed; must be in \[0, pi/2\]"):
         from_table(SafetyConfig, {"deadlock_turn_rad": 2.0}, "safety")
+
+
+@pytest.mark.parametrize("model,cmd", [(UnicycleModel(), [0.4, 0.0]), (OmniModel(), [0.4, 0.0, 0.0])])
+def test_stale_neighbour_direction_tightens_moving_across(model, cmd):
+    # heading +y, passing a neighbour 0.2 s old at (d, 0): the heard direction is exactly across
+    # the motion, but the neighbour may be anywhere within 0.1 m of where it was heard, so
+    # the true direction is within kappa = 2 sin(asin(0.1 / d) / 2) and fast motion across is
+    # closing in; the filter brakes it (without the kappa term it would pass the command)
+    f = SafetyFilter(CFG, model, 0.1)
+    d = model.radius + 0.06 + CFG.margin_m + 0.1 + 0.005  # the inflated barrier just holds (h = 5 mm)
+    nb = [Neighbour((d, 0.0), 0.2, 0.06, 0.5)]
+    pose = [0.0, 0.0, math.pi / 2]
+    assert f._direction_error(pose, nb)[0] == pytest.approx(2 * math.sin(math.asin(0.1 / d) / 2))
+    res = f.filter(pose, cmd, nb)
+    assert res.active
+    if model.kind == "unicycle":  # it cannot sidestep: it brakes
+        assert abs(res.command[0]) < 0.4 * 0.5
+    else:  # it may sidestep: closing along any direction within kappa of the heard one is bounded
+        vx = (f.centre_velocity_map(pose[2]) @ res.command)[0]
+        kappa = f._direction_error(pose, nb)[0]
+        assert -vx - kappa * float(np.hypot(*res.command[:2])) >= -0.5 * f.gamma * 0.005 - 1e-6
+        assert vx < 0  # it turned away from the neighbour
+    # fresh position (age 0): no direction error, the same motion across passes unchanged
+    fresh = SafetyFilter(SafetyConfig(enabled=True, lookahead_m=0.0), model, 0.1)
+    assert not fresh.filter(pose, cmd, [Neighbour((d - 0.1, 0.0), 0.0, 0.06, 0.5)]).active

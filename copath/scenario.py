@@ -96,6 +96,9 @@ class RunConfig:
     ``duration_s`` at the latest (docs/performance.md, "Runs that end when their work is done")."""
     until_margin_s: float = 5.0
     """``until = "tasks_done"``: simulated time kept after the last task is reported done [s]."""
+    secure: bool = False
+    """Fleet runs: per-run credentials and access control on the run's router, so only the
+    simulator publishes observations and each robot only its own keys (docs/security.md)."""
 
     def __post_init__(self) -> None:
         require(self.duration_s > 0, "run.duration_s", self.duration_s, "must be > 0")
@@ -106,6 +109,7 @@ class RunConfig:
         require(self.physics_dt > 0, "run.physics_dt", self.physics_dt, "must be > 0")
         require(self.until in UNTILS, "run.until", self.until, f"allowed: {', '.join(UNTILS)}")
         require(self.until_margin_s >= 0, "run.until_margin_s", self.until_margin_s, "must be >= 0")
+        require(isinstance(self.secure, bool), "run.secure", self.secure, "must be true or false")
 
 
 @dataclass(frozen=True)

@@ -5,6 +5,7 @@
     copath bench fleet    [--scenarios e5.4 e6.1] [--json]                lockstep over Zenoh vs in-process
     copath bench scale    [--robots 8 16 32 64 128] [--json]              realtime consensus fleets
     copath bench latency  [--robots 16] [--messages 100000] [--json]      neighbour latency, recorder rate
+    copath bench secure   [--scenario e5.5] [--reps 3] [--json]           cost of secure mode (lockstep)
 
 Every subcommand prints a table (or, with ``--json``, one JSON document) and exits 1
 when a run failed. The figures measured on the project's machine, with the machine's
@@ -28,6 +29,7 @@ SUBCOMMANDS = {
     "fleet": "orchestrator.bench_fleet",
     "scale": "orchestrator.bench_scale",
     "latency": "orchestrator.bench_latency",
+    "secure": "orchestrator.bench_secure",
 }
 
 

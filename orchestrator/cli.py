@@ -14,7 +14,7 @@ Subcommands (``copath --version``; ``--log-level LEVEL`` before or after the sub
     copath replay RUN.mcap [--speed X] [--run-id ID] [--connect ENDPOINT] [--live [PORT]]
     copath plot RUN.mcap [--out DIR] [--animate]
     copath scenarios [--json]
-    copath bench solve|dmpc|fleet|scale|latency ... [--json]
+    copath bench solve|dmpc|fleet|scale|latency|secure ... [--json]
 
 CONFIG is a scenario file, or a bundled scenario by its file stem or its experiment id
 (``copath run e5.5``). Exit codes: 0 done, 1 the run failed, 2 bad input, 3 a target of
@@ -42,7 +42,8 @@ logger = logging.getLogger("copath")
 EXIT_FAILED, EXIT_INPUT, EXIT_TARGETS = 1, 2, 3
 
 _SHORTHANDS = (("duration", "run.duration_s"), ("clock", "run.clock"), ("seed", "run.seed"),
-               ("delay", "network.delay_ms"), ("jitter", "network.jitter_ms"), ("loss", "network.loss"))
+               ("delay", "network.delay_ms"), ("jitter", "network.jitter_ms"), ("loss", "network.loss"),
+               ("secure", "run.secure"))
 
 
 def _overrides(args: argparse.Namespace) -> dict:
@@ -515,6 +516,8 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--no-plots", action="store_true", help="do not write figures into the run directory")
     r.add_argument("--live", type=int, nargs="?", const=8765, metavar="PORT",
                    help="serve live Foxglove views on ws://localhost:PORT while the fleet runs [8765]")
+    r.add_argument("--secure", action=argparse.BooleanOptionalAction, default=None,
+                   help="per-run credentials and access control on the run's router (run.secure; docs/security.md)")
     r.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     sw = sub.add_parser("sweep", help="run the product of settings and seeds; one table and plots", parents=[common])
     sw.add_argument("config", help="scenario file, bundled file stem or experiment id")
@@ -575,7 +578,7 @@ def build_parser() -> argparse.ArgumentParser:
     v.add_argument("configs", nargs="+", metavar="CONFIG")
     sub.add_parser("controllers", help="list the controller types (built-in and installed)")
     b = sub.add_parser("bench", help="benchmarks that print figures", add_help=False)
-    b.add_argument("what", choices=("solve", "dmpc", "fleet", "scale", "latency"))
+    b.add_argument("what", choices=("solve", "dmpc", "fleet", "scale", "latency", "secure"))
     return p
 
 

@@ -63,6 +63,9 @@ class RunOptions:
     """Router listen endpoints (default: one free loopback port)."""
     live_port: int | None = None
     """Serve the run's Foxglove views on this WebSocket port while it runs (orchestrator/live.py)."""
+    secure: bool | None = None
+    """Per-run credentials and access control on the router (orchestrator/security.py);
+    None: the scenario's ``run.secure``."""
 
 
 @dataclass
@@ -163,7 +166,16 @@ def run_fleet(scenario: Scenario, opts: RunOptions) -> RunOutcome:
         live.advertise(TOPICS)
         tail = LogTail(out / "logs", live).start()  # process log lines, live
         logger.info("live views on %s (Foxglove: Open connection -> Foxglove WebSocket)", live.url)
-    router = ZenohLink.open(SessionConfig(mode="router", listen=tuple(listen), connect=tuple(opts.connect)))
+    secure = scenario.run.secure if opts.secure is None else bool(opts.secure)
+    metadata["copath"]["secure"] = str(secure)
+    creds, router_extra = None, ()
+    if secure:
+        from .security import make_credentials, router_extra as _router_extra
+
+        creds = make_credentials(out / "secrets", ["sim", *scenario.robot_names])
+        router_extra = _router_extra(creds, keys, list(scenario.robot_names))
+    router = ZenohLink.open(SessionConfig(mode="router", listen=tuple(listen), connect=tuple(opts.connect),
+                                          extra=router_extra))
     recorder = Recorder(out / "run.mcap", keys, metadata, scenario, live=live)
     router.subscribe_raw(keys.all, recorder.write)
     common = ["--run-id", opts.run_id, "--config", str(scen_path.resolve())]  # children run in DIR/logs
@@ -189,11 +201,14 @@ def run_fleet(scenario: Scenario, opts: RunOptions) -> RunOutcome:
     # SIGTERM (a test's timeout, a process manager) ends the run like Ctrl-C: children stopped, log finished
     prev_term = (signal.signal(signal.SIGTERM, _raise_terminated)
                  if threading.current_thread() is threading.main_thread() else None)
+    def _auth(proc: str) -> list[str]:  # a process's credentials, in a file only its owner reads
+        return ["--zenoh-config", str(creds.process_file(proc).resolve())] if creds is not None else []
+
     try:
-        children.append(_spawn("sim", [sys.executable, "-m", "sim", *common, "--start-timeout",
+        children.append(_spawn("sim", [sys.executable, "-m", "sim", *common, *_auth("sim"), "--start-timeout",
                                        str(opts.start_timeout_s)], out / "logs" / "sim.log", out / "logs"))
         for name in scenario.robot_names:
-            children.append(_spawn(name, [sys.executable, "-m", "agent", "--robot", name, *common],
+            children.append(_spawn(name, [sys.executable, "-m", "agent", "--robot", name, *common, *_auth(name)],
                                    out / "logs" / f"{name}.log", out / "logs"))
         while True:
             progress.update(recorder.sim_t, recorder.count)

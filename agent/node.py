@@ -179,6 +179,8 @@ class AgentNode:
         if out.estimate is not None:
             self.link.publish(self.keys.estimate(name), out.estimate)
         self.link.publish(self.keys.cmd(name), out.command)
+        for ev in out.events:
+            self.link.publish(self.keys.event(name), ev)
         ev = self.rt.reject_log.event(name, out.command.t, time.monotonic())
         if ev is not None:
             self.link.publish(self.keys.event(name), ev)

@@ -32,7 +32,7 @@ from copath.safety import SafetyGuard
 from copath.scenario import Scenario
 from copath.wire.faults import FaultyInbox, LinkFaults
 from copath.wire.keys import Keys
-from copath.wire.messages import Command, Estimate, Obs, PeerEnvelope, Telemetry, WireError, to_plain
+from copath.wire.messages import Command, Estimate, Event, Obs, PeerEnvelope, Telemetry, WireError, to_plain
 from copath.wire.trust import RejectLog, StampWindow
 
 logger = logging.getLogger(__name__)
@@ -55,6 +55,8 @@ class StepOutput:
     telemetry: Telemetry
     estimate: Estimate | None = None
     """The pose estimate the controller saw (robots with a ``[sensing]`` estimator)."""
+    events: list[Event] = field(default_factory=list)
+    """Timeline events of this step (``faults_injected``: the fault layer's drops, docs/faults.md)."""
 
 
 @dataclass
@@ -98,6 +100,7 @@ class RobotRuntime:
         self.stamps = StampWindow.for_run(self.dt, scenario.network.delay_ms, scenario.network.jitter_ms)
         self.reject_log = RejectLog()
         self._now = 0.0
+        self._injected: list[tuple[float, str, str]] = []  # (stamp, sender, "dropped" | "partitioned")
         self.sensors = scenario.sensors
         self._angles = sensor_angles(scenario.sensors.count) if scenario.sensors.enabled else None
         self._cmd_size = spec.model.command_size
@@ -163,9 +166,12 @@ class RobotRuntime:
             return
         self.counters.received += 1
         self.received_from[env.sender] = self.received_from.get(env.sender, 0) + 1
+        partitioned = self.faults.partitioned
         if not self.inbox.push(env.sender, env.stamp, env):
             self.counters.dropped_by_faults = self.faults.dropped
             self.counters.partitioned = self.faults.partitioned
+            self._injected.append((env.stamp, env.sender,
+                                   "partitioned" if self.faults.partitioned > partitioned else "dropped"))
 
     def step(self, obs: Obs, now: float) -> StepOutput:
         """Run one control instant at controller time ``now`` with the latest observation."""
@@ -234,7 +240,24 @@ class RobotRuntime:
             peers,
             Telemetry(obs.k, float(now), to_plain(telemetry)),
             estimate,
+            self._fault_events(now),
         )
+
+    def _fault_events(self, now: float) -> list[Event]:
+        """One ``faults_injected`` event for the fault layer's drops of messages stamped
+        before ``now`` (in lockstep all of them have arrived by then, so the event is the
+        same in every run with the seed), counted per sender and kind."""
+        due = [x for x in self._injected if x[0] < now - 1e-9]
+        if not due:
+            return []
+        self._injected = [x for x in self._injected if x[0] >= now - 1e-9]
+        by: dict[str, dict[str, int]] = {}
+        for _, sender, what in due:
+            by.setdefault(sender, {"dropped": 0, "partitioned": 0})[what] += 1
+        return [Event(float(now), self.name, "faults_injected",
+                      {"dropped": sum(v["dropped"] for v in by.values()),
+                       "partitioned": sum(v["partitioned"] for v in by.values()),
+                       "from": dict(sorted(by.items()))})]
 
     def _estimate(self, obs: Obs, now: float, raw: np.ndarray) -> tuple[np.ndarray, Estimate | None]:
         """The pose the controller sees under ``[sensing]``: the EKF's estimate at the

@@ -34,7 +34,7 @@ from copath.scenario import Scenario
 from copath.wire.keys import Keys
 from copath.wire.session import SessionConfig, ZenohLink, free_port, loopback_endpoint
 
-from .mcaplog import Recorder, read_log, software_version
+from .mcaplog import Recorder, fault_metadata, read_log, software_version
 from .metrics import compute_metrics, trace_from_records
 from .progress import Progress
 
@@ -156,6 +156,7 @@ def run_fleet(scenario: Scenario, opts: RunOptions) -> RunOutcome:
         "copath": {"version": software_version(), "run_id": opts.run_id, "clock": scenario.run.clock,
                    "seed": str(scenario.run.seed), "robots": ",".join(scenario.robot_names),
                    "python": sys.version.split()[0]},
+        "faults": fault_metadata(scenario),
     }
     live = tail = None
     if opts.live_port is not None:  # before anything else opens: a busy port fails the run at once

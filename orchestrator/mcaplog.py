@@ -27,10 +27,22 @@ from copath.wire.keys import Keys
 from copath.wire.messages import End, Stats, Truth, WireError, unpack
 
 __all__ = ["Recorder", "RunLog", "read_log", "iter_raw", "software_version", "write_records", "LogError",
-           "check_log", "LogCheck", "read_metadata"]
+           "check_log", "LogCheck", "read_metadata", "fault_metadata"]
 
 MAGIC = b"\x89MCAP0\r\n"
 """The 8 bytes an MCAP file starts and ends with."""
+
+
+def fault_metadata(scenario) -> dict[str, str]:
+    """The run's injected faults as MCAP metadata ``faults`` (JSON per section): the
+    robot-to-robot network faults and the sensor noise, so a log says what was injected
+    (each drop and partition window is also an event on the timeline; docs/faults.md)."""
+    import dataclasses  # noqa: PLC0415
+
+    out = {"network": json.dumps(dataclasses.asdict(scenario.network))}
+    if getattr(scenario, "noise", None) is not None:
+        out["noise"] = json.dumps(dataclasses.asdict(scenario.noise))
+    return out
 
 
 def software_version() -> str:
@@ -158,7 +170,8 @@ def write_records(path: pathlib.Path, records, scenario, run_id: str, origin_ns:
     raw["_source"] = scenario.source
     metadata = {"scenario": {"json": json.dumps(raw), "id": scenario.id, "source": scenario.source},
                 "copath": {"version": software_version(), "run_id": run_id, "clock": "lockstep",
-                           "seed": str(scenario.run.seed), "robots": ",".join(scenario.robot_names), "inprocess": "true"}}
+                           "seed": str(scenario.run.seed), "robots": ",".join(scenario.robot_names), "inprocess": "true"},
+                "faults": fault_metadata(scenario)}
     origin = time.time_ns() if origin_ns is None else origin_ns
     rec = Recorder(pathlib.Path(path), keys, metadata, scenario)
     for t, key, r in records:

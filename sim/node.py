@@ -26,6 +26,7 @@ from typing import Callable
 
 from copath.scenario import ConfigError, Scenario, load_scenario
 from copath.wire.cli import add_config_arguments, session_config_from_args
+from copath.wire.faults import windows_between
 from copath.wire.keys import Keys
 from copath.wire.link import Link
 from copath.wire.messages import Command, End, Event, Start, Stats, Telemetry
@@ -120,6 +121,11 @@ class SimNode:
     def _event(self, what: str, **detail) -> None:
         self.link.publish(self.keys.event("sim"), Event(float(self.world.t), "sim", what, detail))
 
+    def _fault_windows(self, t0: float, t1: float) -> None:
+        """Partition windows opening or closing in [t0, t1) go on the timeline as events."""
+        for what, detail in windows_between(self.scenario.network, t0, t1):
+            self._event(what, **detail)
+
     def _reject_event(self, closing: bool = False) -> None:
         """At most one ``messages_rejected`` event a second (copath.wire.trust.RejectLog)."""
         log = getattr(self.link, "reject_log", None)
@@ -174,6 +180,7 @@ class SimNode:
         n_ticks = int(round(self.duration_s / run.dt))
         for k in range(n_ticks):
             self.world.t = k * run.dt
+            self._fault_windows(k * run.dt, (k + 1) * run.dt)
             for n in self.names:
                 self.link.publish(self.keys.obs(n), self.world.observe(n, k, self.sent))
             waiting = set(self.names)
@@ -226,6 +233,7 @@ class SimNode:
                     break
                 self.world.command(name, cmd.cmd)
             if t >= next_obs - 1e-9:
+                self._fault_windows(next_obs, next_obs + run.dt)
                 for n in self.names:
                     self.link.publish(self.keys.obs(n), self.world.observe(n, k))
                 self.world.saturate_all()

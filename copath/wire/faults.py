@@ -24,7 +24,7 @@ import numpy as np
 
 from copath.scenario import NetworkConfig
 
-__all__ = ["LinkFaults", "FaultyInbox", "Delivery"]
+__all__ = ["LinkFaults", "FaultyInbox", "Delivery", "windows_between"]
 
 
 def _h(name: str) -> int:
@@ -77,6 +77,19 @@ class LinkFaults:
             self.dropped += 1
             return None
         return stamp + (net.delay_ms + u_jit * net.jitter_ms) / 1000.0
+
+
+def windows_between(net: NetworkConfig, t0: float, t1: float) -> list[tuple[str, dict]]:
+    """Partition windows that open or close in [t0, t1): ``("partition_start" | "partition_end",
+    detail)``, for the run's timeline of injected faults (docs/faults.md)."""
+    out = []
+    for i, p in enumerate(net.partitions):
+        detail = {"index": i, "links": [list(link) for link in p.links], "start_s": p.start_s, "end_s": p.end_s}
+        if t0 - 1e-9 <= p.start_s < t1 - 1e-9:
+            out.append(("partition_start", detail))
+        if t0 - 1e-9 <= p.end_s < t1 - 1e-9:
+            out.append(("partition_end", detail))
+    return out
 
 
 @dataclass(order=True)

@@ -1,0 +1,50 @@
+"""Faults are part of the record: fault settings in the MCAP metadata, every injected drop
+(aggregated per step) and every partition window as an event on the timeline."""
+
+from __future__ import annotations
+
+import json
+
+from copath.scenario import load_scenario
+from copath.wire.faults import windows_between
+from orchestrator.inprocess import run_scenario
+from orchestrator.mcaplog import read_log, write_records
+from tests.conftest import config
+
+
+def _faulty(tmp_path):
+    toml = config("e5.5-").read_text()
+    path = tmp_path / "faulty.toml"
+    extra = ('\n[network]\nloss = 0.2\ndelay_ms = 100\n'
+             'partitions = [{links = [["r1", "r2"]], start_s = 5.0, end_s = 8.0}]\n')
+    assert "[network]" not in toml
+    path.write_text(toml + extra)
+    return load_scenario(path)
+
+
+def test_partition_windows_open_and_close_once():
+    from copath.scenario import NetworkConfig, Partition
+
+    net = NetworkConfig(partitions=(Partition((("r1", "r2"),), 5.0, 8.0),))
+    got = [w for k in range(100) for w in windows_between(net, k * 0.1, (k + 1) * 0.1)]
+    assert [w[0] for w in got] == ["partition_start", "partition_end"]
+    assert got[0][1]["links"] == [["r1", "r2"]]
+
+
+def test_drops_and_partitions_are_events_and_the_settings_are_metadata(tmp_path):
+    scen = _faulty(tmp_path)
+    res = run_scenario(scen, duration_s=35.0)
+    log = read_log(write_records(tmp_path / "run.mcap", res.records, scen, "faults-record"))
+    net = json.loads(log.metadata["faults"]["network"])
+    assert net["loss"] == 0.2 and net["delay_ms"] == 100 and net["partitions"][0]["start_s"] == 5.0
+    events = [r for _, _, r in log.records if getattr(r, "TYPE", "") == "event"]
+    windows = [(e.what, e.t) for e in events if e.what.startswith("partition_")]
+    assert windows == [("partition_start", 5.0), ("partition_end", 8.0)]
+    injected = [e for e in events if e.what == "faults_injected"]
+    dropped = sum(e.detail["dropped"] for e in injected)
+    partitioned = sum(e.detail["partitioned"] for e in injected)
+    assert dropped == res.metrics["fleet"]["messages_dropped_by_faults"] - partitioned > 0
+    assert partitioned > 0
+    part = [e for e in injected if e.detail["partitioned"]]
+    assert all(5.0 <= e.t <= 8.0 + 0.3 for e in part)  # stamped in the window, reported a step later
+    assert {e.source for e in part} == {"r1", "r2"}

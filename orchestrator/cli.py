@@ -180,6 +180,12 @@ def _cmd_run(args: argparse.Namespace) -> int:
         if args.inprocess and scenario.run.clock != "lockstep":
             raise ConfigError(f"run.clock = {scenario.run.clock!r} is not allowed with --inprocess; "
                               "in-process runs are lockstep only")
+        for name in args.external:
+            if name not in scenario.robot_names:
+                raise ConfigError(f"--external = {name!r} is not allowed; the scenario's robots are "
+                                  f"{', '.join(scenario.robot_names)}")
+        if args.inprocess and args.external:
+            raise ConfigError("--external is not allowed with --inprocess; external robots join a fleet run")
         if args.inprocess and args.live is not None:
             raise ConfigError(f"--live = {args.live} is not allowed with --inprocess; live views are served "
                               "by fleet runs and by copath replay --live")
@@ -208,7 +214,9 @@ def _cmd_run(args: argparse.Namespace) -> int:
     try:
         outcome = run_fleet(scenario, RunOptions(out_dir=out, run_id=run_id, progress=not args.quiet,
                                                  wall_timeout_s=args.wall_timeout, connect=tuple(args.connect),
-                                                 listen=tuple(args.listen), live_port=args.live))
+                                                 listen=tuple(args.listen), live_port=args.live,
+                                                 external=tuple(args.external),
+                                                 start_timeout_s=600.0 if args.external else 120.0))
     except ValueError as exc:  # LivePortError: nothing was started
         if type(exc).__name__ != "LivePortError":
             raise
@@ -516,6 +524,8 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--no-plots", action="store_true", help="do not write figures into the run directory")
     r.add_argument("--live", type=int, nargs="?", const=8765, metavar="PORT",
                    help="serve live Foxglove views on ws://localhost:PORT while the fleet runs [8765]")
+    r.add_argument("--external", action="append", default=[], metavar="ROBOT",
+                   help="do not start this robot: print its copath agent command and wait for it (repeatable)")
     r.add_argument("--secure", action=argparse.BooleanOptionalAction, default=None,
                    help="per-run credentials and access control on the run's router (run.secure; docs/security.md)")
     r.add_argument("-q", "--quiet", action="store_true", help="no progress bar")

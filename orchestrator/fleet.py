@@ -63,6 +63,9 @@ class RunOptions:
     """Router listen endpoints (default: one free loopback port)."""
     live_port: int | None = None
     """Serve the run's Foxglove views on this WebSocket port while it runs (orchestrator/live.py)."""
+    external: tuple[str, ...] = ()
+    """Robots not started here: the run prints the ``copath agent`` command for each and
+    waits for them to join before the first tick (another terminal or machine)."""
     secure: bool | None = None
     """Per-run credentials and access control on the router (orchestrator/security.py);
     None: the scenario's ``run.secure``."""
@@ -209,8 +212,15 @@ def run_fleet(scenario: Scenario, opts: RunOptions) -> RunOutcome:
         children.append(_spawn("sim", [sys.executable, "-m", "sim", *common, *_auth("sim"), "--start-timeout",
                                        str(opts.start_timeout_s)], out / "logs" / "sim.log", out / "logs"))
         for name in scenario.robot_names:
+            if name in opts.external:
+                continue
             children.append(_spawn(name, [sys.executable, "-m", "agent", "--robot", name, *common, *_auth(name)],
                                    out / "logs" / f"{name}.log", out / "logs"))
+        for name in opts.external:  # the user starts these: the exact command, then the wait
+            cmd = ["copath", "agent", "--run-id", opts.run_id, "--robot", name, "--config", str(scen_path.resolve()),
+                   *[a for e in listen for a in ("--connect", e)], *_auth(name)]
+            print(f"copath run: start robot {name} yourself (the run waits for it):\n  {' '.join(cmd)}",
+                  file=sys.stderr, flush=True)
         while True:
             progress.update(recorder.sim_t, recorder.count)
             sim = children[0]

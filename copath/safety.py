@@ -165,7 +165,7 @@ class SafetyResult:
     slack: float = 0.0
     """Slack sigma of the barriers (> 0: a barrier could not be met within the limits)."""
     min_barrier: float = math.inf
-    """Smallest barrier value h over the constraints [m] (inf without constraints)."""
+    """Smallest centre barrier value h over the neighbours and range readings [m] (inf without any)."""
     ok: bool = True
     """False when the QP failed and the robot was stopped instead."""
     biased: bool = False

@@ -1,0 +1,128 @@
+"""Fuzz a running fleet: thousands of random byte strings, truncated and oversized msgpack,
+wrong wire versions and well-formed forgeries on the run's keys. Open bus: nothing
+crashes and every message r1 was sent is counted as a reject. Secure mode with a
+compromised robot's credentials: nothing reaches anyone and the run meets its targets."""
+
+from __future__ import annotations
+
+import json
+import random
+import time
+
+import msgpack
+import pytest
+
+from copath.scenario import load_scenario
+from copath.wire.keys import Keys
+from copath.wire.messages import WIRE_VERSION, Command, End, Obs, PeerEnvelope, Start
+from copath.wire.session import SessionConfig, ZenohLink, free_port, loopback_endpoint
+from tests.conftest import config
+
+pytestmark = [pytest.mark.integration, pytest.mark.timeout(300)]
+
+
+def _fuzz_payloads(rng: random.Random, n: int, victim: str, neighbour: str) -> list[bytes]:
+    """``n`` invalid records for ``victim``'s keys: none may pass the receiver's checks."""
+    coord = PeerEnvelope(neighbour, 1, 0.5, "coord_state", [0.0, 0.0], {"s": 0.1, "sdot": 0.2, "s_d": 0.0})
+    good = [coord.to_dict(), Obs(1, 0.1, [0.0, 0.0, 0.0]).to_dict(), End(1, 0.1, "x").to_dict()]
+    out = []
+    for i in range(n):
+        kind = i % 6
+        if kind == 0:  # random bytes
+            out.append(rng.randbytes(rng.randint(0, 300)))
+        elif kind == 1:  # a valid record cut short
+            data = coord.pack()
+            out.append(data[: rng.randint(0, len(data) - 1)])
+        elif kind == 2:  # oversized: a 200 kB string where a float belongs
+            d = coord.to_dict()
+            d["payload"] = {"s": "x" * 200_000, "sdot": 0.2, "s_d": 0.0}
+            out.append(msgpack.packb(d))
+        elif kind == 3:  # another wire version
+            d = dict(rng.choice(good))
+            d["v"] = rng.choice([0, WIRE_VERSION + 1, "1", None])
+            out.append(msgpack.packb(d))
+        elif kind == 4:  # well-formed forgery: somebody else's name
+            d = coord.to_dict()
+            d["sender"] = "intruder"
+            out.append(msgpack.packb(d))
+        else:  # well-formed forgery: a stamp from the far future, or not finite
+            d = coord.to_dict()
+            d["stamp"] = rng.choice([1e9, float("nan"), float("inf"), -1e9])
+            out.append(msgpack.packb(d))
+    return out
+
+
+def _run(tmp_path, procs, extra):
+    port = free_port()
+    p = procs.start(["-m", "orchestrator", "run", str(config("e5.5-")), "--out", str(tmp_path), "--run-id", "fuzz",
+                     "--duration", "200", "--listen", loopback_endpoint(port), "-q", "--no-plots", *extra])
+    return p, loopback_endpoint(port)
+
+
+def _wait_until_running(p, mcap, deadline):
+    while not (mcap.is_file() and mcap.stat().st_size > 300_000):
+        assert p.poll() is None and time.monotonic() < deadline, p.stderr.read().decode()[-2000:]
+        time.sleep(0.05)
+
+
+def test_fuzzing_an_open_fleet_crashes_nothing_and_every_reject_is_counted(tmp_path, procs):
+    p, ep = _run(tmp_path, procs, ["--no-secure"])
+    keys = Keys("fuzz")
+    rng = random.Random(10)
+    sent = 0
+    with ZenohLink.open(SessionConfig(mode="client", connect=(ep,), extra=(("connect/timeout_ms", "60000"),))) as bad:
+        _wait_until_running(p, tmp_path / "run.mcap", time.monotonic() + 150)
+        # r1 listens to its observation key, r2's broadcasts and direct messages, sim/start and sim/end
+        targets = [keys.obs("r1"), keys.peer_broadcast("r2"), keys.peer_direct("r2", "r1"), keys.start, keys.end]
+        for i, data in enumerate(_fuzz_payloads(rng, 3000, "r1", "r2")):
+            bad.publish_bytes(targets[i % len(targets)], data)
+            sent += 1
+            if i % 200 == 0:
+                time.sleep(0.01)
+        # and the simulator's command keys
+        for data in _fuzz_payloads(rng, 300, "sim", "r2"):
+            bad.publish_bytes(keys.cmd("r1"), data)
+        time.sleep(0.5)
+    assert p.wait(timeout=240) == 0, p.stderr.read().decode()[-3000:]
+    m = json.loads((tmp_path / "metrics.json").read_text())
+    assert m["ok"]
+    # every copy delivered is counted: with the safety filter overhearing, r1 receives
+    # r2's broadcasts and direct messages twice (its peer and its overhearing subscriptions)
+    scen = load_scenario(config("e5.5-"))
+    copies = 2 if scen.safety.enabled and scen.safety.overhear else 1
+    peer = sum(1 for i in range(sent) if i % 5 in (1, 2))
+    assert m["robots"]["r1"]["messages_rejected"] == sent - peer + copies * peer
+    # r3 also hears sim/start and sim/end, r2's broadcasts (r2 is its neighbour) and, when
+    # overhearing, r2's direct messages to r1
+    bcast = sum(1 for i in range(sent) if i % 5 == 1)
+    direct = sum(1 for i in range(sent) if i % 5 == 2)
+    sim_keys = sum(1 for i in range(sent) if i % 5 in (3, 4))
+    assert m["robots"]["r3"]["messages_rejected"] == copies * bcast + (copies - 1) * direct + sim_keys
+    assert m["fleet"]["messages_rejected"] >= sent + 300
+
+
+def test_fuzzing_a_secure_fleet_with_a_robots_credentials_reaches_nobody(tmp_path, procs):
+    p, ep = _run(tmp_path, procs, ["--secure"])
+    keys = Keys("fuzz")
+    rng = random.Random(11)
+    cred = tmp_path / "secrets" / "r2.json5"
+    deadline = time.monotonic() + 150
+    while not cred.is_file():
+        assert p.poll() is None and time.monotonic() < deadline
+        time.sleep(0.05)
+    conf = SessionConfig(mode="client", connect=(ep,), config_file=str(cred), extra=(("connect/timeout_ms", "60000"),))
+    with ZenohLink.open(conf) as bad:
+        _wait_until_running(p, tmp_path / "run.mcap", deadline)
+        targets = [keys.obs("r1"), keys.peer_broadcast("r1"), keys.peer_direct("r3", "r1"), keys.start, keys.end,
+                   keys.cmd("r1"), keys.truth]
+        payloads = _fuzz_payloads(rng, 3000, "r1", "r3")
+        payloads += [Command(5, 0.5, [2.0, 2.0], 0.0, {}).pack(), Start(0.0, 0.1, "lockstep").pack()]
+        for i, data in enumerate(payloads):
+            bad.publish_bytes(targets[i % len(targets)], data)
+            if i % 200 == 0:
+                time.sleep(0.01)
+        time.sleep(0.5)
+    assert p.wait(timeout=240) == 0, p.stderr.read().decode()[-3000:]
+    m = json.loads((tmp_path / "metrics.json").read_text())
+    assert m["ok"] and m["fleet"]["coordination_error_max_m"] < 0.02
+    assert m["fleet"]["messages_rejected"] == 0  # the router let none of it through

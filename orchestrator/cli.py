@@ -430,9 +430,9 @@ def _cmd_replay(args: argparse.Namespace) -> int:
                                       kwargs={"speed": args.speed, "stop": stop})
             feeder.start()
         res = replay(args.log, speed=args.speed, run_id=args.run_id, connect=tuple(args.connect),
-                     listen=tuple(args.listen),
+                     listen=tuple(args.listen), wait_for=args.wait_for, pace=args.pace, record=args.record,
                      announce=lambda e: print(f"replaying {args.log} on {e}", file=sys.stderr, flush=True))
-    except (FileNotFoundError, ValueError) as exc:
+    except (FileNotFoundError, ValueError, TimeoutError) as exc:
         print(f"copath replay: {exc}", file=sys.stderr)
         return 2
     finally:
@@ -573,6 +573,11 @@ def build_parser() -> argparse.ArgumentParser:
     rp.add_argument("log")
     rp.add_argument("--speed", type=float, default=1.0)
     rp.add_argument("--run-id", help="publish under this run id instead of the recorded one")
+    rp.add_argument("--wait-for", metavar="N|Ss", help="before the first message, wait for N sessions to join "
+                    "(and a subscriber to match), or for S seconds (e.g. 2.5s)")
+    rp.add_argument("--pace", choices=("wall", "sim"), default="wall",
+                    help="space messages by recorded wall time (default) or by simulated time")
+    rp.add_argument("--record", metavar="OUT.mcap", help="also write what is republished to this log")
     rp.add_argument("-e", "--connect", action="append", default=[], metavar="ENDPOINT")
     rp.add_argument("-l", "--listen", action="append", default=[], metavar="ENDPOINT")
     rp.add_argument("--live", type=int, nargs="?", const=8765, metavar="PORT",

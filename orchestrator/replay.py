@@ -5,12 +5,21 @@
 (optionally under another run id) with the original timing scaled by ``speed``, so a
 viewer or another tool can consume a past run live. Without ``--connect`` it hosts its
 own router on a free loopback port and prints the endpoint.
+
+``--wait-for N`` holds the first message back until N sessions have joined the replay's
+router and a subscriber matches the log's keys (``--wait-for 2.5s``: a fixed delay), so a
+client that connects just after the start hears everything. ``--pace sim`` spaces the
+messages by the simulated time of the tick they belong to (a lockstep log, recorded
+faster than real time, replays in real time), ``--pace wall`` (default) by the recorded
+wall time. ``--record OUT.mcap`` writes what was republished to a new log.
 """
 
 from __future__ import annotations
 
+import bisect
 import json
 import pathlib
+import re
 import sys
 import time
 from dataclasses import dataclass
@@ -118,17 +127,77 @@ def _rekey(key: str, new_run: str | None) -> str:
     return key
 
 
+def parse_wait_for(spec: str | None) -> tuple[int, float]:
+    """``"3"`` -> (3 sessions, 0 s); ``"2.5s"`` -> (0, 2.5 s); None -> (0, 0)."""
+    if spec is None:
+        return 0, 0.0
+    s = str(spec).strip()
+    if re.fullmatch(r"\d+", s):
+        return int(s), 0.0
+    m = re.fullmatch(r"(\d+(?:\.\d*)?)s", s)
+    if m:
+        return 0, float(m.group(1))
+    raise ValueError(f"--wait-for = {spec!r} is not allowed; give a number of sessions (e.g. 2) or a delay "
+                     "in seconds (e.g. 2.5s)")
+
+
+def _sim_clock(path: pathlib.Path):
+    """log time [ns] -> simulated time [s] of the tick the message belongs to (the first
+    truth record at or after it; after the last truth, the last one's time)."""
+    import msgpack  # noqa: PLC0415
+
+    times, sims = [], []
+    for t, key, data in iter_raw(path):
+        if key.endswith("/sim/truth"):
+            try:
+                times.append(t)
+                sims.append(float(msgpack.unpackb(data)["t"]))
+            except Exception:  # a damaged truth record: skip it
+                times.pop()
+    if not times:
+        raise LogError(f"{path}: --pace sim needs the simulator's truth records, and the log has none")
+
+    def sim_time(t_ns: int) -> float:
+        i = min(bisect.bisect_left(times, t_ns), len(times) - 1)
+        return sims[i]
+
+    return sim_time
+
+
+def _await_audience(link: ZenohLink, sessions: int, delay_s: float, timeout_s: float, key: str) -> None:
+    """Wait until ``sessions`` sessions are connected and a subscriber matches ``key``, then ``delay_s``."""
+    if sessions > 0:
+        deadline = time.monotonic() + timeout_s
+        pub = link.session.declare_publisher(key)
+        try:
+            while len(list(link.session.info.transports())) < sessions or not pub.matching_status.matching:
+                if time.monotonic() > deadline:
+                    raise TimeoutError(f"--wait-for {sessions}: {len(list(link.session.info.transports()))} "
+                                       f"session(s) joined within {timeout_s:.0f} s")
+                time.sleep(0.02)
+        finally:
+            pub.undeclare()
+    if delay_s > 0:
+        time.sleep(delay_s)
+
+
 def replay(path: str | pathlib.Path, *, speed: float = 1.0, run_id: str | None = None,
            connect: tuple[str, ...] = (), listen: tuple[str, ...] = (), start_delay_s: float = 0.5,
-           announce=None) -> ReplayResult:
+           announce=None, wait_for: str | None = None, wait_timeout_s: float = 120.0, pace: str = "wall",
+           record: str | pathlib.Path | None = None) -> ReplayResult:
     """Republish a run log on Zenoh with its original timing divided by ``speed``."""
     if not speed > 0:
         raise ValueError(f"--speed = {speed!r} is not allowed; must be > 0")
+    if pace not in ("wall", "sim"):
+        raise ValueError(f"--pace = {pace!r} is not allowed; allowed: wall, sim")
+    sessions, delay_s = parse_wait_for(wait_for)
     if run_id:
         valid_run_id(run_id)
     path = pathlib.Path(path)
     check_log(path)
-    require_copath(path, read_metadata(path))
+    metadata = read_metadata(path)
+    require_copath(path, metadata)
+    sim_time = _sim_clock(path) if pace == "sim" else None
     if connect:
         conf = SessionConfig(mode="client", connect=tuple(connect), listen=tuple(listen))
         endpoint = connect[0]
@@ -136,24 +205,45 @@ def replay(path: str | pathlib.Path, *, speed: float = 1.0, run_id: str | None =
         endpoint = listen[0] if listen else loopback_endpoint(free_port())
         conf = SessionConfig(mode="router", listen=(endpoint,))
     n = 0
+    recorder = None
+    if record is not None:
+        from copath.wire.keys import Keys  # noqa: PLC0415
+
+        from .mcaplog import Recorder  # noqa: PLC0415
+
+        new_id = run_id or metadata.get("copath", {}).get("run_id", "replay")
+        meta = {k: dict(v) for k, v in metadata.items() if k != "outcome"}
+        meta.setdefault("copath", {})["run_id"] = new_id
+        meta["replay"] = {"source": str(path), "pace": pace, "speed": str(speed)}
+        recorder = Recorder(pathlib.Path(record), Keys(new_id), meta)
     with ZenohLink.open(conf) as link:
         if announce:
             announce(endpoint)
-        time.sleep(start_delay_s)  # give subscribers a moment to connect
+        if sessions or delay_s:
+            run = run_id or metadata.get("copath", {}).get("run_id") or "*"
+            _await_audience(link, sessions, delay_s, wait_timeout_s, f"{ROOT}/{run}/**")
+        else:
+            time.sleep(start_delay_s)  # give subscribers a moment to connect
         t0_wall = time.monotonic()
         t0_log = None
         last = 0.0
         for log_time, key, data in iter_raw(path):
+            clock = sim_time(log_time) * 1e9 if sim_time is not None else log_time
             if t0_log is None:
-                t0_log = log_time
-            due = (log_time - t0_log) / 1e9 / speed
+                t0_log = clock
+            due = (clock - t0_log) / 1e9 / speed
             wait = t0_wall + due - time.monotonic()
             if wait > 0:
                 time.sleep(wait)
-            link.publish_bytes(_rekey(key, run_id), data)
+            out_key = _rekey(key, run_id)
+            link.publish_bytes(out_key, data)
+            if recorder is not None:
+                recorder.write(out_key, data)
             n += 1
             last = due
         time.sleep(0.2)
+    if recorder is not None:
+        recorder.finish({"outcome": {"ok": "True", "reason": f"replay of {path.name}"}})
     return ReplayResult(n, endpoint, last)
 
 

@@ -26,6 +26,7 @@ import argparse
 import collections
 import dataclasses
 import logging
+import os
 import queue
 import sys
 import threading
@@ -35,7 +36,7 @@ from copath.scenario import ConfigError, load_scenario
 from copath.wire.cli import add_config_arguments, session_config_from_args
 from copath.wire.keys import Keys
 from copath.wire.link import Link
-from copath.wire.messages import End, Obs, PeerEnvelope, Start, Stats
+from copath.wire.messages import Command, End, Event, Obs, PeerEnvelope, Start, Stats
 
 from .runtime import RobotRuntime
 
@@ -72,6 +73,10 @@ class AgentNode:
         when no newer observation follows within this time; an observation after it
         proves it forged (docs/faults.md)."""
         self._end_at: float | None = None
+        self.watchdog_s = runtime.scenario.run.watchdog_s
+        """No observation for this long: command zero velocity and say so (0: off)."""
+        self._heard = time.monotonic()
+        self._tripped = False
 
     # -- receive: one callback per record type (link threads, or inline) -------------
     def _on_obs(self, key: str, rec) -> None:
@@ -80,6 +85,7 @@ class AgentNode:
                 self._end_at = None
                 self.rt.reject_log.add(self.keys.end, "an end record followed by observations (not the simulator's)")
             self.latest_obs = rec
+            self._heard, self._tripped = time.monotonic(), False
             if self.inline:
                 self._lockstep_step(rec)
             else:
@@ -115,6 +121,30 @@ class AgentNode:
         if self._end_at is not None and time.monotonic() - self._end_at > self.end_grace_s:
             self.ended.set()
         return self.ended.is_set()
+
+    def _on_robot_alive(self, key: str, alive: bool) -> None:
+        name = key.rsplit("/", 1)[-1]
+        if name in self.rt.scenario.robot_names:
+            self.rt.peer_alive(name, alive)
+
+    def _watchdog(self) -> None:
+        """Heard nothing from the simulator for ``watchdog_s``: stop the robot (a zero
+        command) and say so, once until the next observation (docs/faults.md)."""
+        obs = self.latest_obs
+        if self.watchdog_s <= 0 or obs is None or self._tripped or self.ended.is_set():
+            return
+        silent = time.monotonic() - self._heard
+        if silent < self.watchdog_s:
+            return
+        self._tripped = True
+        name = self.rt.name
+        logger.warning("heard nothing from the simulator for %.1f s; commanding zero velocity", silent)
+        self.link.publish(self.keys.cmd(name), Command(obs.k, float(obs.t), [0.0] * len(self.rt._last_cmd), 0.0,
+                                                       dict(self.rt.sent)))
+        self.link.publish(self.keys.event(name), Event(float(obs.t), name, "watchdog",
+                                                       {"silent_s": round(silent, 3), "k": obs.k,
+                                                        "command": "zero velocity"}))
+        self.rt.counters.extra["watchdog_stops"] = self.rt.counters.extra.get("watchdog_stops", 0) + 1
 
     def _on_sim_alive(self, key: str, alive: bool) -> None:
         if not alive and not self.ended.is_set():
@@ -186,6 +216,10 @@ class AgentNode:
             self.link.publish(self.keys.event(name), ev)
 
     def _lockstep_step(self, obs: Obs) -> None:
+        if self.rt.counters.steps == 0 and obs.k > 0 and obs.expect:
+            # a restarted robot joins mid-run: what its neighbours sent before it came is gone
+            for sender, n in obs.expect.items():
+                self.rt.received_from[sender] = max(self.rt.received_from.get(sender, 0), n)
         self._await_peers(obs)
         self._emit(self.rt.step(obs, obs.t))
 
@@ -202,6 +236,7 @@ class AgentNode:
         self.link.subscribe(self.keys.start, self._on_sim)
         self.link.subscribe(self.keys.end, self._on_sim)
         self.link.watch_liveliness(self.keys.alive("sim"), self._on_sim_alive)
+        self.link.watch_liveliness(self.keys.all_alive, self._on_robot_alive)
         self.link.declare_token(self.keys.alive(name))  # ready: subscriptions are in place
 
     def run(self) -> None:
@@ -214,11 +249,13 @@ class AgentNode:
                 except queue.Empty:
                     if self._end_due():
                         break
+                    self._watchdog()
                     continue
                 if obs is None:
                     break
                 self._lockstep_step(obs)
         else:
+            _yield_to_simulator()
             while not self.started.wait(timeout=0.5):
                 if self.ended.is_set():
                     break
@@ -229,6 +266,7 @@ class AgentNode:
             extra.setdefault("realtime_periods", 0)
             while not self._end_due():
                 extra["realtime_periods"] += 1
+                self._watchdog()
                 obs = self._newest_obs()
                 if obs is not None:
                     self._drain_peers()
@@ -260,6 +298,20 @@ class AgentNode:
                 counters[f"peer_age_ms_p{q}"] = round(1e3 * ages[min(len(ages) - 1, int(q / 100 * len(ages)))], 4)
             counters["peer_age_ms_max"] = round(1e3 * ages[-1], 4)
         self.link.publish(self.keys.stats(self.rt.name), Stats(self.rt.name, self.link.published, counters))
+
+
+REALTIME_NICE = 5
+"""Realtime: agents lower their scheduling priority by this much (``os.nice``) so that on a
+busy machine the simulator's 100 Hz physics and the router are served first
+(docs/performance.md, P9); 0 leaves it."""
+
+
+def _yield_to_simulator() -> None:
+    if REALTIME_NICE > 0 and hasattr(os, "nice"):
+        try:
+            os.nice(REALTIME_NICE)
+        except OSError:  # not allowed here: run at the default priority
+            pass
 
 
 def _peak_rss_mb() -> float | None:

@@ -28,6 +28,7 @@ import numpy as np
 from agent.controllers import build_controller
 from copath.control import Observation, PeerMessage, RobotContext
 from copath.estimation import PoseEKF, wrap
+from copath.models import limit_change, world_velocity
 from copath.safety import SafetyGuard
 from copath.scenario import Scenario
 from copath.wire.faults import FaultyInbox, LinkFaults
@@ -109,6 +110,10 @@ class RobotRuntime:
         self._kind = spec.model.kind
         self.ekf: PoseEKF | None = None
         self._last_cmd = [0.0] * self._cmd_size
+        self._model = spec.model
+        self._applied = np.zeros(self._cmd_size)
+        """The command the robot applies (saturated and, with an acceleration limit, rate-limited
+        as the simulator does), for the velocity in its envelopes."""
         self._raw_pose: np.ndarray | None = None
         self.safety = (SafetyGuard(scenario.safety, name, {r.name: r.model for r in scenario.robots}, self.dt,
                                    scenario.sensors.count if scenario.sensors.enabled else 0)
@@ -187,7 +192,7 @@ class RobotRuntime:
                 self.counters.out_of_range += 1
                 continue
             if self.safety is not None and self._overhear is None:
-                self.safety.hear(env.sender, env.pos, env.stamp)
+                self.safety.hear(env.sender, env.pos, env.stamp, env.vel)
             inbox.append(PeerMessage(env.sender, env.kind, env.stamp, now - env.stamp, env.payload, tuple(env.pos),
                                      None if env.cov is None else tuple(env.cov)))
         self.counters.delivered += len(inbox)
@@ -216,17 +221,20 @@ class RobotRuntime:
             t0 = time.perf_counter()
             for env in self._overhear.pop_ready(now) if self._overhear is not None else ():
                 if self.comm_range == 0 or math.hypot(env.pos[0] - pose[0], env.pos[1] - pose[1]) <= self.comm_range:
-                    self.safety.hear(env.sender, env.pos, env.stamp)
+                    self.safety.hear(env.sender, env.pos, env.stamp, env.vel)
             res = self.safety.apply(pose, cmd, now, ranges, self._angles)
             cmd = [float(c) for c in res.command]
             telemetry.update(safety_active=res.active, safety_change=res.change,
                              safety_ms=(time.perf_counter() - t0) * 1e3)
         self.counters.steps += 1
+        self._applied = limit_change(self._model, self._applied, self._model.saturate(cmd)[0], self.dt)
+        vel = [float(v) for v in world_velocity(self._model, float(pose[2]), self._applied)]
         peers = []
         for m in messages:
             self.seq += 1
             env = PeerEnvelope(self.name, self.seq, float(now), m.kind, [float(pose[0]), float(pose[1])],
-                               to_plain(dict(m.payload)), None if self.ekf is None else self.ekf.position_cov)
+                               to_plain(dict(m.payload)), None if self.ekf is None else self.ekf.position_cov,
+                               vel)
             if m.to is None:
                 peers.append((self.keys.peer_broadcast(self.name), env))
                 self.sent["*"] += 1

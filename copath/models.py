@@ -25,6 +25,8 @@ __all__ = [
     "rotation_speed_limit",
     "scale_velocities",
     "make_model",
+    "limit_change",
+    "world_velocity",
 ]
 
 DELTA_WHEEL = math.pi / 6
@@ -80,6 +82,45 @@ def integrate_body_velocities(poses: np.ndarray, body_vels: np.ndarray, dt: floa
     return np.stack([P[:, 0] + c * dx_b - s * dy_b, P[:, 1] + s * dx_b + c * dy_b, P[:, 2] + a], axis=1)
 
 
+def _check_accel(model) -> None:
+    for name in ("a_max", "alpha_max"):
+        val = getattr(model, name)
+        if val is not None and not (math.isfinite(val) and val > 0):
+            raise ValueError(f"{model.kind} model {name} = {val!r} is not allowed; must be > 0 (or left out: no limit)")
+
+
+def limit_change(model, previous, command, dt: float) -> np.ndarray:
+    """Command the robot can reach within dt from the ``previous`` applied one.
+
+    Both are body commands within the model's limits (omni ``(u, v, omega)``, unicycle
+    ``(v, omega)``). The applied command moves towards ``command`` along the straight line
+    between them, by the largest fraction lam in [0, 1] with ``|Delta (u, v)| <= a_max dt``
+    (unicycle ``|Delta v| <= a_max dt``) and ``|Delta omega| <= alpha_max dt``: a convex
+    combination of two admissible commands, so the wheel limits (3.2) and the (v, omega) box
+    still hold. Without limits it returns ``command`` (docs/safety.md, "acceleration limits")."""
+    cmd = np.asarray(command, dtype=float)
+    if model.a_max is None and model.alpha_max is None:
+        return cmd
+    prev = np.asarray(previous, dtype=float)
+    d = cmd - prev
+    lam = 1.0
+    trans = float(np.hypot(d[0], d[1])) if model.kind == "omni" else abs(float(d[0]))
+    if model.a_max is not None and trans > model.a_max * dt:
+        lam = min(lam, model.a_max * dt / trans)
+    if model.alpha_max is not None and abs(float(d[-1])) > model.alpha_max * dt:
+        lam = min(lam, model.alpha_max * dt / abs(float(d[-1])))
+    return prev + lam * d
+
+
+def world_velocity(model, theta: float, command) -> np.ndarray:
+    """World-frame velocity ``(xdot, ydot, thetadot)`` of a robot at heading theta applying a
+    body command, (3.1) / (3.3)."""
+    c = np.asarray(command, dtype=float)
+    u, v = (float(c[0]), float(c[1])) if model.kind == "omni" else (float(c[0]), 0.0)
+    ct, st = math.cos(theta), math.sin(theta)
+    return np.array([ct * u - st * v, st * u + ct * v, float(c[-1])])
+
+
 @dataclass(frozen=True)
 class OmniModel:
     """Three-wheeled omnidirectional robot, (3.1)-(3.2)."""
@@ -92,6 +133,11 @@ class OmniModel:
     """Wheel mounting angle [rad]."""
     radius: float = 0.2
     """Footprint radius for collision checks [m] (chosen)."""
+    a_max: float | None = None
+    """Acceleration limit of the translational body velocity (u, v) [m/s^2], enforced by the
+    simulator (:func:`limit_change`); None: no limit (velocities jump as in Chapter 3)."""
+    alpha_max: float | None = None
+    """Limit on the change of the yaw rate omega [rad/s^2]; None: no limit."""
 
     kind = "omni"
     command_size = 3
@@ -100,6 +146,7 @@ class OmniModel:
         for name in ("L_w", "qdot_max", "radius"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"omni model {name} must be > 0, got {getattr(self, name)!r}")
+        _check_accel(self)
 
     @property
     def M(self) -> np.ndarray:
@@ -176,6 +223,11 @@ class UnicycleModel:
     """Half axle: centre to wheel distance [m] (chosen; the text gives only the 12 cm body)."""
     radius: float = 0.06
     """Footprint radius for collision checks [m] (c't-Bot, 12 cm diameter)."""
+    a_max: float | None = None
+    """Acceleration limit of the forward speed v [m/s^2], enforced by the simulator
+    (:func:`limit_change`); None: no limit (velocities jump as in Chapter 3)."""
+    alpha_max: float | None = None
+    """Limit on the change of the yaw rate omega [rad/s^2]; None: no limit."""
 
     kind = "unicycle"
     command_size = 2
@@ -184,6 +236,7 @@ class UnicycleModel:
         for name in ("v_max", "omega_max", "b", "radius"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"unicycle model {name} must be > 0, got {getattr(self, name)!r}")
+        _check_accel(self)
 
     def wheel_speeds(self, cmd) -> np.ndarray:
         """(v_r, v_l) = (v + b omega, v - b omega) of (3.3)."""

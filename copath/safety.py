@@ -72,9 +72,10 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from .config import require
-from .models import OmniModel, UnicycleModel
+from .models import OmniModel, UnicycleModel, integrate_body_velocity
 
-__all__ = ["SafetyConfig", "Neighbour", "SafetyResult", "SafetyFilter", "SafetyGuard", "max_speed"]
+__all__ = ["SafetyConfig", "Neighbour", "SafetyResult", "SafetyFilter", "SafetyGuard", "max_speed",
+           "max_turn_rate", "prediction_bound", "predict_position"]
 
 
 @dataclass(frozen=True)
@@ -151,6 +152,9 @@ class Neighbour:
     lookahead: float = 0.0
     """Its look-ahead distance [m] (unicycles filtering with one): its look-ahead point is within
     this of its centre, heading unknown."""
+    predicted: bool = False
+    """True when ``position`` is predicted from the velocity it sent under its enforced
+    acceleration limit (``spread`` the guaranteed error of that prediction)."""
 
 
 @dataclass(frozen=True)
@@ -184,6 +188,43 @@ def max_speed(model: OmniModel | UnicycleModel) -> float:
     d = np.stack([np.cos(phi), np.sin(phi)])
     peak = np.max(np.abs(model.M[:, :2] @ d), axis=0)
     return float(model.qdot_max / peak.min())
+
+
+def max_turn_rate(model: OmniModel | UnicycleModel) -> float:
+    """Largest yaw rate the model's limits allow [rad/s]: omega_max of a unicycle, qdot_max / L_w
+    of an omni robot ((3.2) with u = v = 0)."""
+    if isinstance(model, UnicycleModel):
+        return float(model.omega_max)
+    return float(model.qdot_max / model.L_w)
+
+
+def prediction_bound(tau: float, speed: float, a_max: float, alpha_max: float | None, omega_bound: float,
+                     lag: float) -> float:
+    """Guaranteed bound on how far a neighbour is, ``tau`` after its message, from the arc
+    predicted with the velocity it sent (:func:`predict_position`) [m] (docs/safety.md,
+    "acceleration limits").
+
+    Its body translational velocity b (omni (u, v), unicycle (v, 0)) changes by at most a_max per
+    second and its yaw rate by at most alpha_max (or by at most 2 omega_bound without that
+    limit); the sent velocity is the one it applies from up to ``lag`` (one control period)
+    before or after the stamp. With T = tau + lag and the world velocity R(theta) b,
+    ``|V(t) - V_pred(t)| <= |b(t) - b_0| + |b_0| |theta(t) - theta_0 - omega_0 t|``, whose
+    integral over [0, tau] is at most ``a_max T^2 / 2 + |b_0| alpha_max T^3 / 6`` (or
+    ``a_max T^2 / 2 + |b_0| omega_bound T^2``)."""
+    T = max(tau, 0.0) + lag
+    turn = speed * alpha_max * T**3 / 6.0 if alpha_max is not None else speed * omega_bound * T**2
+    return a_max * T**2 / 2.0 + turn
+
+
+def predict_position(position, velocity, tau: float) -> tuple[float, float]:
+    """Where a neighbour heard at ``position`` with world velocity ``velocity`` = (xdot, ydot,
+    thetadot) is ``tau`` later if it holds its body command: an arc of (3.1)/(3.3) [m]."""
+    vx, vy, w = (float(c) for c in velocity)
+    speed = math.hypot(vx, vy)
+    if speed < 1e-12:
+        return float(position[0]), float(position[1])
+    p = integrate_body_velocity((position[0], position[1], math.atan2(vy, vx)), (speed, 0.0, w), max(tau, 0.0))
+    return float(p[0]), float(p[1])
 
 
 LOOKAHEAD_SLACK_SHARE = 0.01
@@ -323,7 +364,10 @@ class SafetyFilter:
             if nb.age > cfg.max_age_s:
                 continue
             pts.append(nb.position)
-            dist.append(self.r_eff + nb.radius + cfg.margin_m + _spread(nb) + self.lookahead + nb.lookahead)
+            # the predicted centre when the neighbour's velocity and acceleration limit are known
+            # (its spread is then carried by the hard centre rows only), else the heard disc
+            spread = 0.0 if nb.predicted else _spread(nb)
+            dist.append(self.r_eff + nb.radius + cfg.margin_m + spread + self.lookahead + nb.lookahead)
         if not pts:
             return np.zeros((0, 2)), np.zeros(0)
         d = z[None, :] - np.asarray(pts, dtype=float)
@@ -538,6 +582,10 @@ class SafetyGuard:
                             0.0 if isinstance(m, OmniModel) else float(config.lookahead_m))
                         for n, m in models.items()}
         self._accel = config.accel_max_mps2
+        # enforced limits of each robot's model: (a_max, alpha_max, yaw-rate bound)
+        self._limits = {n: (m.a_max, m.alpha_max, max_turn_rate(m)) for n, m in models.items()}
+        self._dt = float(dt)
+        self._vel: dict[str, tuple[float, float, float]] = {}
         self._heard: dict[str, tuple[float, float, float]] = {}
         self._before: dict[str, tuple[float, float, float]] = {}  # the sample before the newest
         self.interventions = 0
@@ -551,8 +599,9 @@ class SafetyGuard:
         self.bias_steps = 0
         """Instants at which the deadlock rule's right-hand bias shaped the command."""
 
-    def hear(self, sender: str, position, stamp: float) -> None:
-        """Remember the newest position a robot sent (older stamps are ignored)."""
+    def hear(self, sender: str, position, stamp: float, velocity=None) -> None:
+        """Remember the newest position (and world velocity (xdot, ydot, thetadot), when the
+        message carries it) a robot sent; older stamps are ignored."""
         if sender == self.name or sender not in self._bounds:
             return
         old = self._heard.get(sender)
@@ -560,6 +609,10 @@ class SafetyGuard:
             if old is not None and stamp > old[2]:
                 self._before[sender] = old
             self._heard[sender] = (float(position[0]), float(position[1]), float(stamp))
+            if velocity is not None and len(velocity) == 3:
+                self._vel[sender] = (float(velocity[0]), float(velocity[1]), float(velocity[2]))
+            else:
+                self._vel.pop(sender, None)
 
     def neighbours(self, now: float) -> list[Neighbour]:
         out = []
@@ -568,7 +621,16 @@ class SafetyGuard:
             age = max(now - stamp, 0.0)
             nb = Neighbour((x, y), age, r, s, lookahead=look)
             prev = self._before.get(sender)
-            if self._accel is not None and prev is not None:
+            a_max, alpha_max, w_bound = self._limits[sender]
+            vel = self._vel.get(sender)
+            if a_max is not None and vel is not None:
+                # the sender's enforced acceleration limit and its sent velocity: a guaranteed,
+                # tighter disc around the predicted arc (docs/safety.md, "acceleration limits")
+                speed = math.hypot(vel[0], vel[1])
+                spread = prediction_bound(age, speed, a_max, alpha_max, w_bound, self._dt)
+                if spread < s * age:
+                    nb = Neighbour(predict_position((x, y), vel, age), age, r, s, spread, look, True)
+            elif self._accel is not None and prev is not None:
                 # velocity averaged over [t0, t1] is within accel * (t - t0) of the velocity at
                 # any t in [t1, now]: extrapolate and bound the error of the displacement
                 x0, y0, t0 = prev

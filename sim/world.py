@@ -57,6 +57,7 @@ class World:
                 self.applied[self.names[i]] = g.app[j]
         self.violated = {r.name: False for r in scenario.robots}
         self.t = 0.0
+        self._step_dt = scenario.run.dt
         self._noise_rng = np.random.default_rng(np.random.SeedSequence([scenario.run.seed, 101]))
         self.sensors = scenario.sensors
         self.sensing: dict[str, RobotSensors] = {}  # robots with a non-ideal sensor profile
@@ -80,17 +81,27 @@ class World:
         row[:] = np.asarray(cmd, dtype=float).reshape(row.shape)
 
     def advance(self, dt: float) -> None:
-        """Integrate every robot over dt with its saturated command."""
-        self.saturate_all()
+        """Integrate every robot over dt with its saturated (and, for models with an
+        acceleration limit, rate-limited) command."""
+        self.saturate_all(dt)
         for n, sensors in self.sensing.items():
             sensors.advance(self.t, self.poses[n].copy(), self.applied[n].copy(), dt)
         self._P[:] = integrate_body_velocities(self._P, self._B, dt)
+        for g in self._groups:
+            g.commit()
+        self._step_dt = dt
         self.t += dt
 
-    def saturate_all(self) -> None:
-        """Compute applied commands and violations without moving (for the truth record)."""
+    def saturate_all(self, dt: float | None = None) -> None:
+        """Compute applied commands and violations without moving (for the truth record).
+
+        Models with an acceleration limit move from the command applied over the last
+        physics step towards the saturated request by at most a_max * dt
+        (``copath.models.limit_change``); dt defaults to the last physics step's (run.dt
+        before the first). Idempotent until :meth:`advance` commits the step."""
+        dt = self._step_dt if dt is None else dt
         for g in self._groups:
-            g.saturate(self._B, self._viol)
+            g.saturate(self._B, self._viol, dt)
         self.violated = dict(zip(self.names, self._viol.tolist()))
 
     # -- observations -----------------------------------------------------------------
@@ -165,6 +176,11 @@ class _Group:
         size = 2 if kind == "unicycle" else 3
         self.req = np.zeros((len(rows), size))
         self.app = np.zeros((len(rows), size))
+        # acceleration limits (inf: none) and the command applied over the last physics step
+        self.a_max = np.array([np.inf if m.a_max is None else m.a_max for m in models])
+        self.alpha_max = np.array([np.inf if m.alpha_max is None else m.alpha_max for m in models])
+        self.limited = bool(np.any(np.isfinite(self.a_max)) or np.any(np.isfinite(self.alpha_max)))
+        self.prev = np.zeros((len(rows), size))
         if kind == "unicycle":
             self.v_max = np.array([m.v_max for m in models])
             self.w_max = np.array([m.omega_max for m in models])
@@ -173,7 +189,7 @@ class _Group:
             self.M = np.stack([wheel_matrix(m.delta, m.L_w) for m in models]) if models else np.zeros((0, 3, 3))
             self.q_max = np.array([m.qdot_max for m in models])
 
-    def saturate(self, B: np.ndarray, viol: np.ndarray) -> None:
+    def saturate(self, B: np.ndarray, viol: np.ndarray, dt: float) -> None:
         """Applied commands (into ``self.app``), body velocities (rows of B) and violations."""
         R = self.req
         if self.kind == "unicycle":  # UnicycleModel.saturate, row-wise
@@ -183,16 +199,32 @@ class _Group:
             sigma = np.maximum(1.0, np.maximum(np.abs(v) / self.v_max, np.abs(w) / self.w_max))
             self.app[:, 0] = v / sigma
             self.app[:, 1] = w / sigma
-            B[self.rows, 0] = self.app[:, 0]
-            B[self.rows, 1] = 0.0
-            B[self.rows, 2] = self.app[:, 1]
         else:  # OmniModel.saturate, row-wise
             peak = np.max(np.abs(np.einsum("kij,kj->ki", self.M, R)), axis=1)
             over = peak > self.q_max * (1 + 1e-6)
             viol[self.rows] = over
             scale = np.where(over, self.q_max / np.where(over, peak, 1.0), 1.0)
             self.app[:] = R * scale[:, None]
+        if self.limited:  # copath.models.limit_change, row-wise
+            d = self.app - self.prev
+            trans = np.abs(d[:, 0]) if self.kind == "unicycle" else np.hypot(d[:, 0], d[:, 1])
+            lam = np.ones(len(d))
+            with np.errstate(divide="ignore", invalid="ignore"):
+                lam = np.minimum(lam, np.where(trans > self.a_max * dt, self.a_max * dt / trans, 1.0))
+                rot = np.abs(d[:, -1])
+                lam = np.minimum(lam, np.where(rot > self.alpha_max * dt, self.alpha_max * dt / rot, 1.0))
+            self.app[:] = self.prev + lam[:, None] * d
+        if self.kind == "unicycle":
+            B[self.rows, 0] = self.app[:, 0]
+            B[self.rows, 1] = 0.0
+            B[self.rows, 2] = self.app[:, 1]
+        else:
             B[self.rows] = self.app
+
+    def commit(self) -> None:
+        """The applied commands were held over a physics step: the next step starts from them."""
+        if self.limited:
+            self.prev[:] = self.app
 
     def wheel_max(self) -> np.ndarray:
         """Largest wheel rim speed of each robot for its applied command [m/s]."""

@@ -310,6 +310,7 @@ class PeerEnvelope(_Record):
         "pos": "floats",
         "payload": "dict",
         "cov": "floats?",
+        "vel": "floats?",
     }
     sender: str
     seq: int
@@ -322,6 +323,10 @@ class PeerEnvelope(_Record):
     payload: dict[str, Any]
     cov: list[float] | None = None
     """Covariance [Pxx, Pxy, Pyy] of ``pos`` when the sender runs an estimator, else None."""
+    vel: list[float] | None = None
+    """Sender's world-frame velocity [xdot, ydot, thetadot] ([m/s, m/s, rad/s]) under the command
+    it applies from ``stamp`` on (its own acceleration-limited command, (3.1)/(3.3)); None in
+    logs written before the field existed. The safety filter predicts the sender with it."""
 
     @classmethod
     def from_dict(cls, d):
@@ -331,6 +336,8 @@ class PeerEnvelope(_Record):
             raise WireError(f"peer.pos = {rec.pos!r} must be [x, y]")
         if rec.cov is not None and len(rec.cov) != 3:
             raise WireError(f"peer.cov = {rec.cov!r} must be [Pxx, Pxy, Pyy]")
+        if rec.vel is not None and (len(rec.vel) != 3 or not all(math.isfinite(v) for v in rec.vel)):
+            raise WireError(f"peer.vel = {rec.vel!r} must be [xdot, ydot, thetadot], finite")
         return rec
 
 

@@ -268,7 +268,7 @@ class AgentNode:
                 extra["realtime_periods"] += 1
                 self._watchdog()
                 obs = self._newest_obs()
-                if obs is not None:
+                if obs is not None and self._end_at is None:  # no step while an End awaits confirmation
                     self._drain_peers()
                     now = time.time() - self.wall_t0
                     self._emit(self.rt.step(obs, now))

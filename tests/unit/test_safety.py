@@ -300,3 +300,103 @@ def test_stale_neighbour_direction_tightens_moving_across(model, cmd):
     # fresh position (age 0): no direction error, the same motion across passes unchanged
     fresh = SafetyFilter(SafetyConfig(enabled=True, lookahead_m=0.0), model, 0.1)
     assert not fresh.filter(pose, cmd, [Neighbour((d - 0.1, 0.0), 0.0, 0.06, 0.5)]).active
+
+
+# -- acceleration limits: the simulator enforces them, the filter's prediction relies on them --
+
+def _world(model: dict, n: int = 1):
+    from copath.scenario import parse_scenario  # noqa: PLC0415
+    from sim.world import World  # noqa: PLC0415
+
+    robots = [{"name": f"r{i + 1}", "model": model, "pose": [2.0 * i, 0.0, 0.0]} for i in range(n)]
+    return World(parse_scenario({"id": "accel", "run": {"duration_s": 5.0, "dt": 0.1}, "robots": robots,
+                                 "controller": {"type": "tests.closed_loop.test_safety:build_silent"}}))
+
+
+@pytest.mark.parametrize("model, cmd", [
+    ({"type": "unicycle", "v_max": 0.5, "omega_max": 1.0, "a_max": 0.3, "alpha_max": 1.0}, [0.5, 1.0]),
+    ({"type": "omni", "a_max": 1.0, "alpha_max": 4.0}, [0.8, -0.6, 2.0]),
+])
+def test_simulator_enforces_the_acceleration_limit(model, cmd):
+    w = _world(model)
+    m = w.models["r1"]
+    dt = 0.1
+    trans = (lambda c: float(np.hypot(c[0], c[1]))) if m.kind == "omni" else (lambda c: abs(float(c[0])))
+    prev = np.zeros(len(cmd))
+    speeds = []
+    for k in range(60):  # full speed ahead, then a full stop: both at the limit, never beyond
+        w.command("r1", cmd if k < 30 else np.zeros(len(cmd)))
+        w.advance(dt)
+        app = w.applied["r1"].copy()
+        assert trans(app - prev) <= m.a_max * dt * (1 + 1e-9)
+        assert abs(app[-1] - prev[-1]) <= m.alpha_max * dt * (1 + 1e-9)
+        speeds.append(trans(app))
+        prev = app
+    assert speeds[0] == pytest.approx(m.a_max * dt)  # at the limit from rest
+    assert max(speeds) == pytest.approx(trans(np.asarray(cmd)))  # the command is reached
+    assert speeds[-1] == pytest.approx(0.0)  # and the stop
+    # truth records (saturate_all without moving) do not advance the rate limit
+    w.command("r1", cmd)
+    w.saturate_all()
+    w.saturate_all()
+    assert trans(w.applied["r1"]) == pytest.approx(m.a_max * dt)
+
+
+def test_simulator_without_a_limit_applies_the_command_at_once():
+    w = _world({"type": "unicycle", "v_max": 0.5, "omega_max": 1.0})
+    w.command("r1", [0.4, -0.7])
+    w.advance(0.1)
+    assert w.applied["r1"].tolist() == [0.4, -0.7]
+
+
+@pytest.mark.parametrize("kind", ["unicycle", "omni"])
+@pytest.mark.parametrize("seed", range(6))
+def test_prediction_bound_holds_for_a_neighbour_at_its_limits(kind, seed):
+    """A neighbour sends its velocity, then brakes, accelerates and turns at its limits (bang-bang
+    commands, physics steps of 10 ms): where it really is stays within the guaranteed bound of
+    the arc predicted from what it sent, at every age."""
+    from copath.models import limit_change, world_velocity  # noqa: PLC0415
+    from copath.safety import max_turn_rate, prediction_bound, predict_position  # noqa: PLC0415
+
+    rng = np.random.default_rng(seed)
+    if kind == "unicycle":
+        m = UnicycleModel(v_max=0.5, omega_max=1.0, a_max=0.3, alpha_max=1.0)
+        cmd0 = np.array([rng.uniform(-0.5, 0.5), rng.uniform(-1.0, 1.0)])
+    else:
+        m = OmniModel(a_max=1.0, alpha_max=4.0)
+        cmd0 = m.saturate(np.array([rng.uniform(-1, 1), rng.uniform(-1, 1), rng.uniform(-3, 3)]))[0]
+    dt_ctl, dt_phys = 0.1, 0.01
+    pose = np.array([0.0, 0.0, rng.uniform(-math.pi, math.pi)])
+    applied = cmd0.copy()
+    vel = world_velocity(m, pose[2], applied)  # what it sends with its position
+    p0 = pose[:2].copy()
+    speed = float(np.hypot(vel[0], vel[1]))
+    worst = 0.0
+    cmd = cmd0
+    for k in range(1, 301):  # 3 s
+        if k % 10 == 0:  # a new extreme command every control period
+            lim = [m.v_max, m.omega_max] if kind == "unicycle" else [1.0, 1.0, 3.0]
+            cmd = m.saturate(rng.choice([-1.0, 1.0], len(lim)) * np.asarray(lim))[0]
+        applied = limit_change(m, applied, cmd, dt_phys)
+        pose = m.step(pose, applied, dt_phys)
+        tau = k * dt_phys
+        err = float(np.hypot(*(pose[:2] - np.asarray(predict_position(p0, vel, tau)))))
+        bound = prediction_bound(tau, speed, m.a_max, m.alpha_max, max_turn_rate(m), dt_ctl)
+        assert err <= bound + 1e-9, (tau, err, bound)
+        worst = max(worst, err / bound)
+    assert worst > 0.05  # the test exercises the bound, it is not vacuous
+
+
+def test_guard_predicts_a_neighbour_with_its_sent_velocity_and_enforced_limit():
+    lim = UnicycleModel(v_max=0.5, omega_max=1.0, a_max=0.3, alpha_max=1.0)
+    models = {"a": lim, "b": lim, "c": UnicycleModel(v_max=0.5, omega_max=1.0)}
+    g = SafetyGuard(SafetyConfig(enabled=True), "a", models, 0.1)
+    g.hear("b", [1.0, 0.0], 0.0, [0.2, 0.0, 0.0])  # limited: predicted along its velocity
+    g.hear("c", [0.0, 1.0], 0.0, [0.2, 0.0, 0.0])  # no declared limit: the speed bound as before
+    nb_b, nb_c = g.neighbours(1.0)
+    assert nb_b.predicted and nb_b.position == pytest.approx((1.2, 0.0))
+    assert nb_b.spread == pytest.approx(0.3 * 1.1**2 / 2 + 0.2 * 1.0 * 1.1**3 / 6)
+    assert nb_b.spread < 0.5 * 1.0  # tighter than v_max * age
+    assert not nb_c.predicted and nb_c.position == (0.0, 1.0) and nb_c.spread is None
+    g.hear("b", [1.2, 0.0], 0.5)  # a message without the velocity (an old log): the speed bound
+    assert g.neighbours(1.0)[0].spread is None

@@ -143,3 +143,18 @@ def test_formation_switching_without_its_repulsion_is_kept_apart_by_the_filter()
     m = run_scenario(parse_scenario({**raw, "safety": {"enabled": True}})).metrics
     assert m["fleet"]["collisions"] == 0 and m["fleet"]["min_separation_m"] >= 0.12
     assert sum(r["safety_interventions"] for r in m["robots"].values()) > 0
+
+
+def test_column_keeps_its_coordination_at_one_second_delay_and_half_lost_with_the_filter_on():
+    # issue 14's goal with the bundled [safety] on: E5.5's robots declare acceleration limits
+    # (enforced by the simulator) and send their velocity, so the filter predicts a stale
+    # neighbour within a_max tau^2 / 2 (+ a turn term) instead of inflating it by v_max tau
+    s = load_scenario(config("e5.5-column"))
+    assert s.safety.enabled and all(r.model.a_max is not None for r in s.robots)
+    m = run_scenario(s.with_overrides(network={"delay_ms": 1000.0, "loss": 0.5})).metrics
+    assert m["fleet"]["collisions"] == 0
+    assert m["fleet"]["messages_dropped_by_faults"] > 0
+    assert _interventions(m) > 0  # the filter did act on stale neighbours
+    assert m["fleet"]["coordination_error_max_m"] < 0.1
+    for r in m["robots"].values():
+        assert r["limit_violations"] == 0

@@ -98,6 +98,11 @@ class SafetyConfig:
     position is extrapolated with the velocity of its last two messages and inflated by
     accel_max_mps2 * (now - t_previous) * age when that is tighter than speed * age.
     None: speed bound only."""
+    braking: bool = True
+    """Robots whose model declares an acceleration limit a_max (enforced by the simulator) get
+    braking-distance-aware rows: their share of a gap h closes at most at sqrt(a_max h), the
+    speed from which they can still stop within h / 2 (docs/safety.md, "acceleration limits").
+    False: first-order rows only, which assume the command is reached at once."""
     max_age_s: float = 2.0
     """A neighbour's position older than this is forgotten [s] (it left communication)."""
     overhear: bool = True
@@ -434,6 +439,17 @@ class SafetyFilter:
         n, h, gain = self.barriers(pose, neighbours, ranges, angles)
         A = n @ self.centre_velocity_map(th)  # (k, m): n^T G(theta)
         rhs = -gain * np.maximum(h, 0.0)
+        if self.config.braking and self.model.a_max is not None:
+            # braking-distance-aware: the robot reaches a command only at a_max, so its share of a
+            # gap h may close at most at the speed c from which it stops, decelerating at a_max,
+            # within h / 2 (sqrt(a_max h) in continuous time); that bound shrinks at most at rate
+            # a_max while the pair closes at it, so the applied velocity can follow it
+            # (docs/safety.md, "acceleration limits")
+            # (discrete: velocity held over dt, shed by a_max dt per period, so it stops within
+            # c^2 / (2 a) + c dt / 2 <= h / 2, the positive root c below)
+            a_dt = 0.5 * self.model.a_max * self.dt
+            stop = np.sqrt(a_dt**2 + self.model.a_max * np.maximum(h, 0.0)) - a_dt
+            rhs = -np.minimum(gain * np.maximum(h, 0.0), stop)
         h_min = float(h.min()) if len(h) else math.inf
         # a neighbour heard `spread` ago lies anywhere in a disc of that radius, so the true
         # normal is within |n - n_hat| <= kappa of the heard one and the true closing rate is

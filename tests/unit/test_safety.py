@@ -400,3 +400,17 @@ def test_guard_predicts_a_neighbour_with_its_sent_velocity_and_enforced_limit():
     assert not nb_c.predicted and nb_c.position == (0.0, 1.0) and nb_c.spread is None
     g.hear("b", [1.2, 0.0], 0.5)  # a message without the velocity (an old log): the speed bound
     assert g.neighbours(1.0)[0].spread is None
+
+
+def test_barrier_lets_a_robot_with_an_acceleration_limit_close_only_as_fast_as_it_can_stop():
+    cfg = SafetyConfig(enabled=True)
+    nb = [Neighbour((1.0, 0.0), 0.0, 0.06, 0.5)]
+    free = SafetyFilter(cfg, UnicycleModel(), 0.1)
+    lim = SafetyFilter(cfg, UnicycleModel(a_max=0.25), 0.1)
+    A, rhs_free, _, h = free.constraints([0, 0, 0], nb)
+    _, rhs_lim, _, _ = lim.constraints([0, 0, 0], nb)
+    assert rhs_free[0] == pytest.approx(-0.5 * free.gamma * h)  # the first-order barrier
+    c = -rhs_lim[0]  # its stopping speed: shedding 0.25 * 0.1 m/s a period, it stops within h / 2
+    assert c**2 / (2 * 0.25) + c * 0.1 / 2 == pytest.approx(h / 2)
+    res = lim.filter([0, 0, 0], [0.5, 0.0], nb)
+    assert res.active and res.command[0] <= c + 1e-6

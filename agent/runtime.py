@@ -101,6 +101,11 @@ class RobotRuntime:
         self.stamps = StampWindow.for_run(self.dt, scenario.network.delay_ms, scenario.network.jitter_ms)
         self.reject_log = RejectLog()
         self._now = 0.0
+        self.lost: frozenset[str] = frozenset()
+        """Robots whose liveliness token went away (the run goes on without them,
+        ``run.on_robot_failure``): their messages are dropped and the controller is told."""
+        self._early: list[PeerEnvelope] | None = []
+        """Peer messages that came before the first step, checked against its clock."""
         self._injected: list[tuple[float, str, str]] = []  # (stamp, sender, "dropped" | "partitioned")
         self.sensors = scenario.sensors
         self._angles = sensor_angles(scenario.sensors.count) if scenario.sensors.enabled else None
@@ -138,7 +143,8 @@ class RobotRuntime:
 
     def overhear(self, env: PeerEnvelope) -> None:
         """Accept an overheard envelope: only its sender's position and stamp are used."""
-        if self._overhear is not None and env.sender != self.name and self._stamp_ok(env, "overheard"):
+        if (self._overhear is not None and env.sender != self.name
+                and (self._early is not None or self._stamp_ok(env, "overheard"))):  # no clock before the first step
             self.counters.extra["overheard"] = self.counters.extra.get("overheard", 0) + 1
             self._overhear.push(env.sender, env.stamp, env)
 
@@ -156,6 +162,11 @@ class RobotRuntime:
                 out[sender] = n - got
         return out
 
+    def peer_alive(self, name: str, alive: bool) -> None:
+        """A robot's liveliness changed (its process died or froze, or it came back)."""
+        if name != self.name:
+            self.lost = self.lost - {name} if alive else self.lost | {name}  # replaced whole: thread-safe read
+
     def _stamp_ok(self, env: PeerEnvelope, where: str) -> bool:
         try:
             self.stamps.check(env.stamp, self._now)
@@ -167,7 +178,12 @@ class RobotRuntime:
     def receive(self, env: PeerEnvelope) -> None:
         """Accept a peer envelope that arrived (before faults); one stamped outside the
         receiver's :class:`~copath.wire.trust.StampWindow` is rejected and counted."""
-        if env.sender == self.name or not self._stamp_ok(env, "peer"):
+        if env.sender == self.name:
+            return
+        if self.counters.steps == 0 and self._early is not None:  # no clock yet (a robot restarted mid-run)
+            self._early.append(env)
+            return
+        if not self._stamp_ok(env, "peer"):
             return
         self.counters.received += 1
         self.received_from[env.sender] = self.received_from.get(env.sender, 0) + 1
@@ -181,13 +197,20 @@ class RobotRuntime:
     def step(self, obs: Obs, now: float) -> StepOutput:
         """Run one control instant at controller time ``now`` with the latest observation."""
         self._now = max(self._now, float(now))
+        if self._early is not None:
+            early, self._early = self._early, None
+            for env in early:
+                self.receive(env)
         pose = np.asarray(obs.pose, dtype=float)
         estimate = None
         if obs.meas is not None:
             pose, estimate = self._estimate(obs, now, pose)
         inbox = []
+        lost = self.lost
         # a deterministic order whatever the arrival order (sums over neighbours stay bitwise equal)
         for env in sorted(self.inbox.pop_ready(now), key=lambda e: (e.stamp, e.sender, e.seq)):
+            if env.sender in lost:
+                continue
             if self.comm_range > 0 and math.hypot(env.pos[0] - pose[0], env.pos[1] - pose[1]) > self.comm_range:
                 self.counters.out_of_range += 1
                 continue
@@ -204,6 +227,7 @@ class RobotRuntime:
             ranges=ranges,
             sensor_angles=self._angles,
             sensor_max_range=self.sensors.max_range_m if self._angles is not None else 0.0,
+            lost=lost,
         )
         t0 = time.perf_counter()
         try:

@@ -69,6 +69,7 @@ __all__ = [
 
 CLOCKS = ("lockstep", "realtime")
 UNTILS = ("duration", "tasks_done")
+FAILURE_POLICIES = ("fail", "continue", "restart")
 _ID_RE = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]*")
 _CONTROLLER_RE = re.compile(r"[A-Za-z_][\w.-]*|[A-Za-z_][\w.]*:[A-Za-z_]\w*")
 _EXPERIMENT_RE = re.compile(r"e[4-6]\.[0-9]+")
@@ -97,6 +98,14 @@ class RunConfig:
     until_margin_s: float = 5.0
     """``until = "tasks_done"``: simulated time kept after the last task is reported done [s]."""
     secure: bool = False
+    on_robot_failure: str = "fail"
+    """What a robot process that dies or freezes (its liveliness lease expires) does to the
+    run: ``fail`` ends it; ``continue`` stops that robot where it is and the others go on
+    without it; ``restart`` starts its process again, which rejoins from the current
+    world state (docs/faults.md)."""
+    watchdog_s: float = 5.0
+    """An agent that hears nothing from the simulator for this long commands zero
+    velocity and logs an event (0: off)."""
     """Fleet runs: per-run credentials and access control on the run's router, so only the
     simulator publishes observations and each robot only its own keys (docs/security.md)."""
 
@@ -110,6 +119,9 @@ class RunConfig:
         require(self.until in UNTILS, "run.until", self.until, f"allowed: {', '.join(UNTILS)}")
         require(self.until_margin_s >= 0, "run.until_margin_s", self.until_margin_s, "must be >= 0")
         require(isinstance(self.secure, bool), "run.secure", self.secure, "must be true or false")
+        require(self.on_robot_failure in FAILURE_POLICIES, "run.on_robot_failure", self.on_robot_failure,
+                f"allowed: {', '.join(FAILURE_POLICIES)}")
+        require(self.watchdog_s >= 0, "run.watchdog_s", self.watchdog_s, "must be >= 0 (0: off)")
 
 
 @dataclass(frozen=True)

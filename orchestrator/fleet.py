@@ -192,11 +192,15 @@ def run_fleet(scenario: Scenario, opts: RunOptions) -> RunOutcome:
     progress = Progress(scenario.run.duration_s, enabled=opts.progress,
                         starting=f"starting {len(scenario.robots) + 1} processes (solvers compile)").start()
     ready: set[str] = set()  # robots whose controller is built: their liveliness token is up
+    token_at: dict[str, float] = {}  # when each robot's token last appeared
+    spawned_at: dict[str, float] = {}
 
     def _on_alive(key: str, alive: bool) -> None:
         name = key.rsplit("/", 1)[-1]
         if name in scenario.robot_names:
             (ready.add if alive else ready.discard)(name)
+            if alive:
+                token_at[name] = time.monotonic()
             progress.starting = (f"starting: {len(ready)}/{len(scenario.robots)} robots ready "
                                  "(the others build their controllers; solvers compile)")
 
@@ -208,14 +212,23 @@ def run_fleet(scenario: Scenario, opts: RunOptions) -> RunOutcome:
     def _auth(proc: str) -> list[str]:  # a process's credentials, in a file only its owner reads
         return ["--zenoh-config", str(creds.process_file(proc).resolve())] if creds is not None else []
 
+    policy = scenario.run.on_robot_failure
+    restarts = {n: 0 for n in scenario.robot_names}
+    gone: set[str] = set()  # robots lost under "continue"
+    max_restarts = 3
+
+    def _agent(name: str) -> _Child:
+        spawned_at[name] = time.monotonic()
+        log = out / "logs" / (f"{name}.log" if not restarts[name] else f"{name}.restart{restarts[name]}.log")
+        return _spawn(name, [sys.executable, "-m", "agent", "--robot", name, *common, *_auth(name)], log, out / "logs")
+
     try:
         children.append(_spawn("sim", [sys.executable, "-m", "sim", *common, *_auth("sim"), "--start-timeout",
                                        str(opts.start_timeout_s)], out / "logs" / "sim.log", out / "logs"))
         for name in scenario.robot_names:
             if name in opts.external:
                 continue
-            children.append(_spawn(name, [sys.executable, "-m", "agent", "--robot", name, *common, *_auth(name)],
-                                   out / "logs" / f"{name}.log", out / "logs"))
+            children.append(_agent(name))
         for name in opts.external:  # the user starts these: the exact command, then the wait
             cmd = ["copath", "agent", "--run-id", opts.run_id, "--robot", name, "--config", str(scen_path.resolve()),
                    *[a for e in listen for a in ("--connect", e)], *_auth(name)]
@@ -226,6 +239,32 @@ def run_fleet(scenario: Scenario, opts: RunOptions) -> RunOutcome:
             sim = children[0]
             rc_sim = sim.proc.poll()
             failed = [c for c in children[1:] if c.proc.poll() is not None and (c.proc.returncode != 0 or rc_sim is None and recorder.end is None)]
+            if policy == "restart" and rc_sim is None and recorder.end is None:
+                for c in children[1:]:  # frozen (its token expired, the process is still there): kill, restart
+                    if (c.proc.poll() is None and c.name not in ready
+                            and token_at.get(c.name, 0.0) > spawned_at.get(c.name, float("inf"))):
+                        logger.warning("robot %s (pid %d) lost its liveliness; killing it to restart it",
+                                       c.name, c.proc.pid)
+                        try:
+                            os.killpg(c.proc.pid, signal.SIGKILL)
+                            c.proc.wait(timeout=5)
+                        except (ProcessLookupError, subprocess.TimeoutExpired):
+                            pass
+                failed = [c for c in children[1:] if c.proc.poll() is not None
+                          and (c.proc.returncode != 0 or recorder.end is None)]
+            if failed and rc_sim is None and recorder.end is None and policy != "fail":
+                # run.on_robot_failure: the simulator holds the robot still and goes on
+                for c in failed:
+                    logger.warning("robot %s (pid %d) %s at sim t=%.2f s; policy %s", c.name, c.proc.pid,
+                                   _describe_exit(c.proc.returncode), recorder.sim_t, policy)
+                    children.remove(c)
+                    c.log.close()
+                    if policy == "restart" and restarts[c.name] < max_restarts:
+                        restarts[c.name] += 1
+                        children.append(_agent(c.name))
+                    else:
+                        gone.add(c.name)
+                failed = []
             if failed:
                 c = failed[0]
                 ok, reason = False, (f"robot {c.name} (pid {c.proc.pid}) {_describe_exit(c.proc.returncode)} "
@@ -242,6 +281,9 @@ def run_fleet(scenario: Scenario, opts: RunOptions) -> RunOutcome:
                 while time.monotonic() < deadline and any(c.proc.poll() is None for c in children):
                     time.sleep(0.05)
                 stuck = [c.name for c in children if c.proc.poll() is None]
+                if policy != "fail":  # frozen robots the run went on without
+                    gone.update(n for n in stuck if n in scenario.robot_names and n not in ready)
+                    stuck = [n for n in stuck if n not in gone]
                 bad = [c for c in children[1:] if c.proc.poll() is not None and c.proc.returncode != 0]
                 if stuck:
                     ok, reason = False, f"processes {stuck} did not exit after the end of the run"
@@ -280,8 +322,8 @@ def run_fleet(scenario: Scenario, opts: RunOptions) -> RunOutcome:
     stats = {r.proc: r for _, _, r in log.records if getattr(r, "TYPE", "") == "stats"}
     published = sum(s.published for s in stats.values())
     recorded = sum(1 for _, k, _ in log.records if not keys.relative(k).startswith("stats/")) + log.rejected
-    if ok and set(stats) != {"sim", *scenario.robot_names}:
-        missing = sorted({"sim", *scenario.robot_names} - set(stats))
+    if ok and set(stats) | gone != {"sim", *scenario.robot_names}:
+        missing = sorted({"sim", *scenario.robot_names} - set(stats) - gone)
         ok, reason = False, f"no closing account from {missing}"
     trace = trace_from_records(log.records, keys)
     metrics = compute_metrics(trace, scenario, run_id=opts.run_id, clock=scenario.run.clock, wall_time_s=wall,

@@ -60,6 +60,9 @@ ROBOT_KEYS = ROBOT_KEYS + SAFETY_KEYS
 # received messages the robot refused (schema, origin, stamp window; copath.wire.trust), from
 # its closing account; null when the robot left none (killed) (docs/faults.md)
 ROBOT_KEYS = ROBOT_KEYS + ("messages_rejected",)
+# run.on_robot_failure: process restarts and the simulated time the robot was gone (from the
+# simulator's robot_lost / robot_rejoined events; 0 when it never was)
+ROBOT_KEYS = ROBOT_KEYS + ("restarts", "outage_s")
 # realtime clock: control periods whose step ended after the next period had begun, from the
 # robot's closing account; null in lockstep (where the simulator counts missed_ticks)
 ROBOT_KEYS = ROBOT_KEYS + ("deadline_misses",)
@@ -191,6 +194,20 @@ def trace_from_records(records, keys: Keys, radii: dict[str, float] | None = Non
         )
     sim_time = float(truth[-1].t + dt) if truth else 0.0
     return Trace(robots, dt, stats, events, end, sim_time, estimates)
+
+
+def _outage(trace: Trace, name: str) -> tuple[int, float]:
+    """(rejoins, seconds of simulated time gone) of one robot from the simulator's events."""
+    lost_at, total, rejoins = None, 0.0, 0
+    for e in sorted((e for e in trace.events if e.source == "sim" and e.detail.get("robot") == name), key=lambda e: e.t):
+        if e.what == "robot_lost" and lost_at is None:
+            lost_at = e.t
+        elif e.what == "robot_rejoined" and lost_at is not None:
+            total += e.t - lost_at
+            lost_at, rejoins = None, rejoins + 1
+    if lost_at is not None:
+        total += max(0.0, trace.sim_time_s - lost_at)
+    return rejoins, round(total, 6)
 
 
 def _rejected(counters: dict | None) -> int | None:
@@ -331,6 +348,7 @@ def compute_metrics(
         robots[r.name] = _robot_metrics(rt, settle, r.model.kind, missed.get(r.name, 0))
         robots[r.name].update(estimation_metrics(trace.estimates.get(r.name), rt.pose_at))
         robots[r.name]["messages_rejected"] = _rejected(trace.stats.get(r.name))
+        robots[r.name]["restarts"], robots[r.name]["outage_s"] = _outage(trace, r.name)
         robots[r.name]["deadline_misses"] = _deadline(trace.stats.get(r.name), clock)[0]
     geometry = team_geometry(scenario)
     series = truth_series(trace, scenario, geometry) if geometry is not None else None

@@ -71,6 +71,7 @@ class SimNode:
         self.on_tick = on_tick
         """Called with k after each lockstep tick (progress display)."""
         self.synchronous = bool(getattr(link, "synchronous", False))
+        self._started_run = False
         self._started = False
         self.tasks = TaskWatch(scenario) if scenario.run.until == "tasks_done" else None
         self.tasks_done_t: float | None = None
@@ -81,6 +82,10 @@ class SimNode:
         self.cmds: queue.Queue = queue.Queue()
         self.alive: set[str] = set()
         self.lost: list[str] = []
+        self.policy = scenario.run.on_robot_failure
+        self.down: set[str] = set()
+        """Robots gone under ``continue`` or ``restart``: held still, not waited for."""
+        self._transitions: queue.Queue = queue.Queue()
         self._alive_cv = threading.Condition()
         self.missed = {n: 0 for n in self.names}
         self.stale = 0
@@ -113,10 +118,33 @@ class SimNode:
         with self._alive_cv:
             if alive:
                 self.alive.add(name)
+                if self._started_run and self.policy != "fail":
+                    self._transitions.put((name, True))
             elif name in self.alive:
                 self.alive.discard(name)
-                self.lost.append(name)
+                if self.policy == "fail" or not self._started_run:
+                    self.lost.append(name)
+                else:
+                    self._transitions.put((name, False))
             self._alive_cv.notify_all()
+
+    def _apply_transitions(self) -> None:
+        """``continue``/``restart``: a robot lost is held still (zero command) and not waited
+        for; one that comes back is waited for again. Both are events on the timeline."""
+        while True:
+            try:
+                name, alive = self._transitions.get_nowait()
+            except queue.Empty:
+                return
+            if name not in self.names:
+                continue
+            if alive and name in self.down:
+                self.down.discard(name)
+                self._event("robot_rejoined", robot=name)
+            elif not alive and name not in self.down:
+                self.down.add(name)
+                self.world.command(name, [0.0] * self.scenario.robot(name).model.command_size)
+                self._event("robot_lost", robot=name, policy=self.policy)
 
     def _event(self, what: str, **detail) -> None:
         self.link.publish(self.keys.event("sim"), Event(float(self.world.t), "sim", what, detail))
@@ -161,6 +189,7 @@ class SimNode:
                     return False
                 self._alive_cv.wait(timeout=min(left, 0.5))
         run = self.scenario.run
+        self._started_run = True
         self.link.publish(self.keys.start, Start(time.time(), run.dt, run.clock))
         if run.clock == "lockstep":
             k, ok, reason = self._lockstep()
@@ -183,13 +212,18 @@ class SimNode:
             self._fault_windows(k * run.dt, (k + 1) * run.dt)
             for n in self.names:
                 self.link.publish(self.keys.obs(n), self.world.observe(n, k, self.sent))
-            waiting = set(self.names)
+            self._apply_transitions()
+            waiting = set(self.names) - self.down
             # a synchronous link has delivered every command by now: nothing to wait for
             deadline = time.monotonic() + (0.0 if self.synchronous else run.tick_timeout_s)
             while waiting:
                 reason = self._lost_reason()
                 if reason:
                     return k, False, reason
+                self._apply_transitions()
+                waiting -= self.down
+                if not waiting:
+                    break
                 try:
                     name, cmd = self.cmds.get(timeout=min(0.2, max(0.0, deadline - time.monotonic())))
                 except queue.Empty:
@@ -199,7 +233,7 @@ class SimNode:
                             self._event("missed_tick", robot=n, k=k)
                         break
                     continue
-                if cmd.k != k or name not in waiting:
+                if cmd.k != k or name not in waiting or name in self.down:
                     self.stale += 1
                     continue
                 self.world.command(name, cmd.cmd)
@@ -226,6 +260,7 @@ class SimNode:
             reason = self._lost_reason()
             if reason:
                 return k, False, reason
+            self._apply_transitions()
             while True:
                 try:
                     name, cmd = self.cmds.get_nowait()

@@ -283,7 +283,7 @@ class ConsensusController:
 
     def step(self, obs: Observation, inbox: Sequence[PeerMessage]) -> StepResult:
         cfg = self.cfg
-        self.inbox.update(inbox, obs.t)
+        self.inbox.update(inbox, obs.t, obs.lost)  # a lost robot leaves the graph at once
         if self.s is None:
             self.s = self.path.project(obs.pose[:2])
         s, sdot = self.s, self.sdot

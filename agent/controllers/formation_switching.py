@@ -175,7 +175,7 @@ class FormationSwitchingController:
 
     def step(self, obs: Observation, inbox: Sequence[PeerMessage]) -> StepResult:
         cfg = self.cfg
-        self.inbox.update(inbox, obs.t)
+        self.inbox.update(inbox, obs.t, obs.lost)
         if self.s is None:
             self.s = self.path.project(obs.pose[:2])
         s = self.s

@@ -62,6 +62,9 @@ class Observation:
     """(N_s,) bearings of the range sensors in the body frame [rad]."""
     sensor_max_range: float = 0.0
     """Range of each sensor [m]."""
+    lost: frozenset[str] = frozenset()
+    """Robots known to be gone (their liveliness token disappeared: process dead, frozen or
+    silent): a controller drops them from its graph (``run.on_robot_failure``)."""
 
 
 @dataclass(frozen=True)

@@ -105,9 +105,14 @@ class LatestMessages:
         self._accept = accept
         self._kept: dict[tuple[str, str], Received] = {}
 
-    def update(self, inbox: Iterable[PeerMessage], t: float) -> list[Received]:
+    def update(self, inbox: Iterable[PeerMessage], t: float, lost: Iterable[str] = ()) -> list[Received]:
         """Take in the messages of one step at receiver time t; returns the newly kept
-        entries in arrival order (an entry may be replaced later in the same list)."""
+        entries in arrival order (an entry may be replaced later in the same list).
+        ``lost`` (``Observation.lost``): robots known to be gone, whose kept messages are
+        forgotten, so the controller's graph no longer has them."""
+        for sender in lost:
+            if any(k[0] == sender for k in self._kept):
+                self.forget(sender)
         new = []
         for m in inbox:
             if self._kinds is not None and m.kind not in self._kinds:

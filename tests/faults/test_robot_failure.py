@@ -1,0 +1,80 @@
+"""run.on_robot_failure: a robot killed (SIGKILL) or frozen (SIGSTOP) mid-run. ``continue``:
+the simulator holds it still and the others go on; ``restart``: its process is started
+again and rejoins. Loss is detected through liveliness within about a second, and the
+outage is in metrics.json."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import time
+
+import pytest
+
+from orchestrator.mcaplog import read_log
+from tests.conftest import config
+from tests.integration.conftest import child_pids, cmdline
+
+pytestmark = [pytest.mark.integration, pytest.mark.timeout(300)]
+
+
+def _start(procs, out, policy, duration="200"):
+    return procs.start(["-m", "orchestrator", "run", str(config("e5.5-")), "--out", str(out), "--run-id", "fail",
+                        "--duration", duration, "-q", "--no-plots", "--set", f'run.on_robot_failure="{policy}"'])
+
+
+def _victim(p, out, name="r3") -> int:
+    mcap = out / "run.mcap"
+    deadline = time.monotonic() + 150
+    while not (mcap.is_file() and mcap.stat().st_size > 300_000):  # the run is under way
+        assert p.poll() is None and time.monotonic() < deadline, p.stderr.read().decode()[-2000:]
+        time.sleep(0.05)
+    pids = [pid for pid in child_pids(p.pid) if "agent" in cmdline(pid) and name in cmdline(pid)]
+    assert len(pids) == 1
+    return pids[0]
+
+
+def _events(out, what):
+    log = read_log(out / "run.mcap")
+    return [(t, r) for t, _, r in log.records if getattr(r, "TYPE", "") == "event" and r.what == what]
+
+
+@pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGSTOP], ids=["killed", "frozen"])
+def test_continue_goes_on_without_the_lost_robot(tmp_path, procs, sig):
+    p = _start(procs, tmp_path, "continue")
+    pid = _victim(p, tmp_path)
+    t_fault = time.time_ns()
+    os.kill(pid, sig)
+    try:
+        assert p.wait(timeout=240) == 0, p.stderr.read().decode()[-3000:]
+    finally:
+        if sig == signal.SIGSTOP:
+            try:
+                os.kill(pid, signal.SIGKILL)
+            except ProcessLookupError:
+                pass
+    m = json.loads((tmp_path / "metrics.json").read_text())
+    assert m["ok"]
+    lost = _events(tmp_path, "robot_lost")
+    assert [r.detail["robot"] for _, r in lost] == ["r3"]
+    detection_s = (lost[0][0] - t_fault) / 1e9
+    assert detection_s < (0.5 if sig == signal.SIGKILL else 1.6), detection_s  # lease 1 s when frozen
+    assert m["robots"]["r3"]["outage_s"] > 5 and m["robots"]["r3"]["restarts"] == 0
+    assert m["robots"]["r1"]["outage_s"] == 0
+    for n in ("r1", "r2"):  # the others keep following their paths (r2 skirts the stopped r3)
+        assert m["robots"][n]["path_error_max_m"] < 0.2
+
+
+def test_restart_brings_the_robot_back(tmp_path, procs):
+    p = _start(procs, tmp_path, "restart")
+    os.kill(_victim(p, tmp_path), signal.SIGKILL)
+    assert p.wait(timeout=240) == 0, p.stderr.read().decode()[-3000:]
+    m = json.loads((tmp_path / "metrics.json").read_text())
+    assert m["ok"]
+    # the outage is in simulated time, which runs fast in lockstep while the process restarts
+    assert m["robots"]["r3"]["restarts"] == 1 and 0 < m["robots"]["r3"]["outage_s"] < 150
+    rejoined = _events(tmp_path, "robot_rejoined")
+    assert [r.detail["robot"] for _, r in rejoined] == ["r3"]
+    assert (tmp_path / "logs" / "r3.restart1.log").is_file()
+    assert m["robots"]["r3"]["messages_rejected"] == 0

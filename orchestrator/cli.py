@@ -43,7 +43,7 @@ EXIT_FAILED, EXIT_INPUT, EXIT_TARGETS = 1, 2, 3
 
 _SHORTHANDS = (("duration", "run.duration_s"), ("clock", "run.clock"), ("seed", "run.seed"),
                ("delay", "network.delay_ms"), ("jitter", "network.jitter_ms"), ("loss", "network.loss"),
-               ("secure", "run.secure"))
+               ("secure", "run.secure"), ("on_robot_failure", "run.on_robot_failure"))
 
 
 def _overrides(args: argparse.Namespace) -> dict:
@@ -524,6 +524,9 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--no-plots", action="store_true", help="do not write figures into the run directory")
     r.add_argument("--live", type=int, nargs="?", const=8765, metavar="PORT",
                    help="serve live Foxglove views on ws://localhost:PORT while the fleet runs [8765]")
+    r.add_argument("--on-robot-failure", choices=("fail", "continue", "restart"),
+                   help="when a robot process dies or freezes: end the run, go on without it, or restart it "
+                        "(run.on_robot_failure; docs/faults.md)")
     r.add_argument("--external", action="append", default=[], metavar="ROBOT",
                    help="do not start this robot: print its copath agent command and wait for it (repeatable)")
     r.add_argument("--secure", action=argparse.BooleanOptionalAction, default=None,

@@ -330,6 +330,8 @@ class PeerEnvelope(_Record):
 
     @classmethod
     def from_dict(cls, d):
+        if "vel" not in d:  # written before the field existed
+            d = {**d, "vel": None}
         rec = super().from_dict(d)
         validate_payload(rec.kind, rec.payload)
         if len(rec.pos) != 2:

@@ -414,3 +414,17 @@ def test_barrier_lets_a_robot_with_an_acceleration_limit_close_only_as_fast_as_i
     assert c**2 / (2 * 0.25) + c * 0.1 / 2 == pytest.approx(h / 2)
     res = lim.filter([0, 0, 0], [0.5, 0.0], nb)
     assert res.active and res.command[0] <= c + 1e-6
+
+
+def test_peer_envelope_carries_the_velocity_and_old_envelopes_stay_readable():
+    import msgpack  # noqa: PLC0415
+
+    from copath.wire.messages import PeerEnvelope, WireError, unpack  # noqa: PLC0415
+
+    env = PeerEnvelope("r1", 3, 1.5, "follower_status", [1.0, 2.0], {"tracking_error": 0.0}, None, [0.2, -0.1, 0.5])
+    assert unpack(env.pack()) == env
+    old = env.to_dict()
+    del old["vel"]  # a log written before the field existed
+    assert unpack(msgpack.packb(old, use_bin_type=True)).vel is None
+    with pytest.raises(WireError, match="peer.vel"):
+        PeerEnvelope.from_dict({**env.to_dict(), "vel": [0.2, 0.1]})

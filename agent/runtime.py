@@ -187,12 +187,13 @@ class RobotRuntime:
             return
         self.counters.received += 1
         self.received_from[env.sender] = self.received_from.get(env.sender, 0) + 1
-        partitioned = self.faults.partitioned
+        partitioned, silenced = self.faults.partitioned, self.faults.silenced
         if not self.inbox.push(env.sender, env.stamp, env):
             self.counters.dropped_by_faults = self.faults.dropped
             self.counters.partitioned = self.faults.partitioned
-            self._injected.append((env.stamp, env.sender,
-                                   "partitioned" if self.faults.partitioned > partitioned else "dropped"))
+            what = ("partitioned" if self.faults.partitioned > partitioned
+                    else "silenced" if self.faults.silenced > silenced else "dropped")
+            self._injected.append((env.stamp, env.sender, what))
 
     def step(self, obs: Obs, now: float) -> StepOutput:
         """Run one control instant at controller time ``now`` with the latest observation."""
@@ -285,10 +286,11 @@ class RobotRuntime:
         self._injected = [x for x in self._injected if x[0] >= now - 1e-9]
         by: dict[str, dict[str, int]] = {}
         for _, sender, what in due:
-            by.setdefault(sender, {"dropped": 0, "partitioned": 0})[what] += 1
+            by.setdefault(sender, {"dropped": 0, "partitioned": 0, "silenced": 0})[what] += 1
         return [Event(float(now), self.name, "faults_injected",
                       {"dropped": sum(v["dropped"] for v in by.values()),
                        "partitioned": sum(v["partitioned"] for v in by.values()),
+                       "silenced": sum(v["silenced"] for v in by.values()),
                        "from": dict(sorted(by.items()))})]
 
     def _estimate(self, obs: Obs, now: float, raw: np.ndarray) -> tuple[np.ndarray, Estimate | None]:
@@ -318,6 +320,7 @@ class RobotRuntime:
         self.counters.dropped_by_faults = self.faults.dropped
         self.counters.partitioned = self.faults.partitioned
         self.counters.rejected = self.reject_log.total
+        self.counters.extra["silenced"] = self.faults.silenced
         if self.safety is not None:
             self.counters.extra.update(self.safety.counters())
         return self.counters.as_dict()

@@ -9,7 +9,8 @@ The TOML layout (every table optional unless said)::
                 tick_timeout_s, rate_hz (realtime controller rate; default 1/dt)
     [network]   delay_ms, jitter_ms, loss, burst_p_gb, burst_p_bg, burst_loss,
                 range_m (0 = fixed graph from robots.neighbours),
-                partitions = [{links = [["r1", "r2"]], start_s, end_s}]
+                partitions = [{links = [["r1", "r2"]], start_s, end_s}],
+                silence = [{robot, start_s, end_s}]
     [noise]     pose_std = [sx, sy, stheta], range_std
     [sensors]   enabled, count, max_range_m
     [sensing]   profile, estimator, solve_time_s, robots = {r1 = "ideal"}, [sensing.profiles.NAME]
@@ -132,6 +133,16 @@ class Partition:
 
 
 @dataclass(frozen=True)
+class Silence:
+    """A robot whose radio is silent over [start_s, end_s): it neither sends nor receives
+    robot-to-robot messages (its link to the simulator stays up)."""
+
+    robot: str
+    start_s: float
+    end_s: float
+
+
+@dataclass(frozen=True)
 class NetworkConfig:
     delay_ms: float = 0.0
     """Fixed delay added to every robot-to-robot message [ms]."""
@@ -148,6 +159,8 @@ class NetworkConfig:
     range_m: float = 0.0
     """Communication range r [m] (Def. 10); 0 means a fixed graph from robots.neighbours."""
     partitions: tuple[Partition, ...] = ()
+    silence: tuple[Silence, ...] = ()
+    """Radio silences ``[{robot, start_s, end_s}]`` (docs/faults.md)."""
 
     def __post_init__(self) -> None:
         require(self.delay_ms >= 0, "network.delay_ms", self.delay_ms, "must be >= 0")
@@ -339,6 +352,16 @@ def _partition(p: Any, where: str) -> Partition:
     return Partition(tuple((str(a), str(b)) for a, b in links), start, end)
 
 
+def _silence(p: Any, where: str) -> Silence:
+    require(isinstance(p, dict), where, p, "expected a table {robot, start_s, end_s}")
+    for k in p:
+        require(k in ("robot", "start_s", "end_s"), f"{where}.{k}", p[k], "allowed keys: robot, start_s, end_s")
+    require(isinstance(p.get("robot"), str), f"{where}.robot", p.get("robot"), "expected a robot name")
+    start, end = float(p.get("start_s", 0.0)), float(p.get("end_s", math.inf))
+    require(end > start, f"{where}.end_s", end, "must be greater than start_s")
+    return Silence(p["robot"], start, end)
+
+
 def _obstacle(o: Any, where: str) -> ObstacleSpec:
     require(isinstance(o, dict), where, o, "expected a table {vertices, velocity}")
     for k in o:
@@ -436,8 +459,10 @@ def parse_scenario(raw: Mapping[str, Any], base_dir: pathlib.Path | None = None,
     net_tab = dict(raw.get("network") or {})
     parts = [p for p in (errs.take(lambda: _partition(p, f"network.partitions[{i}]"))
                          for i, p in enumerate(net_tab.pop("partitions", []) or [])) if p is not None]
+    silences = [p for p in (errs.take(lambda: _silence(p, f"network.silence[{i}]"))
+                            for i, p in enumerate(net_tab.pop("silence", []) or [])) if p is not None]
     network = errs.take(lambda: from_table(NetworkConfig, net_tab, "network"), NetworkConfig())
-    network = NetworkConfig(**{**network.__dict__, "partitions": tuple(parts)})
+    network = NetworkConfig(**{**network.__dict__, "partitions": tuple(parts), "silence": tuple(silences)})
     noise = errs.take(lambda: from_table(NoiseConfig, raw.get("noise"), "noise"), NoiseConfig())
     sensors = errs.take(lambda: from_table(SensorConfig, raw.get("sensors"), "sensors"), SensorConfig())
 
@@ -471,6 +496,9 @@ def parse_scenario(raw: Mapping[str, Any], base_dir: pathlib.Path | None = None,
                           "must name two robots of this scenario"):
                 errs.check(network.range_m > 0 or frozenset((a, b)) in edges, f"network.partitions[{i}].links",
                            [a, b], "must be an edge of the communication graph (robots.neighbours)")
+
+    for i, sil in enumerate(network.silence):
+        errs.check(sil.robot in order, f"network.silence[{i}].robot", sil.robot, "must name a robot of this scenario")
 
     obstacles = [o for o in (errs.take(lambda: _obstacle(o, f"obstacles[{i}]"))
                              for i, o in enumerate(raw.get("obstacles") or [])) if o is not None]

@@ -382,7 +382,8 @@ def compute_metrics(
     fleet["messages_published"] = messages_published
     fleet["messages_recorded"] = messages_recorded
     fleet["messages_dropped_by_faults"] = int(
-        sum(int(s.get("dropped_by_faults", 0)) + int(s.get("partitioned", 0)) for s in trace.stats.values())
+        sum(int(s.get("dropped_by_faults", 0)) + int(s.get("partitioned", 0)) + int(s.get("silenced", 0) or 0)
+            for s in trace.stats.values())
     )
     rejected = [_rejected(trace.stats.get(p)) for p in ("sim", *scenario.robot_names)]
     fleet["messages_rejected"] = None if all(n is None for n in rejected) else sum(n or 0 for n in rejected)

@@ -42,6 +42,7 @@ class LinkFaults:
         self._bad: dict[str, bool] = {}
         self.dropped = 0
         self.partitioned = 0
+        self.silenced = 0
 
     def _stream(self, sender: str) -> np.random.Generator:
         g = self._rng.get(sender)
@@ -66,6 +67,9 @@ class LinkFaults:
         if self._partitioned(sender, stamp):
             self.partitioned += 1
             return None
+        if any(s.robot in (sender, self.receiver) and s.start_s <= stamp < s.end_s for s in self.net.silence):
+            self.silenced += 1  # the sender's or the receiver's radio is silent
+            return None
         net = self.net
         lost = u_loss < net.loss
         if net.burst_p_gb > 0:
@@ -80,8 +84,9 @@ class LinkFaults:
 
 
 def windows_between(net: NetworkConfig, t0: float, t1: float) -> list[tuple[str, dict]]:
-    """Partition windows that open or close in [t0, t1): ``("partition_start" | "partition_end",
-    detail)``, for the run's timeline of injected faults (docs/faults.md)."""
+    """Partition and radio-silence windows that open or close in [t0, t1):
+    ``("partition_start" | "partition_end" | "silence_start" | "silence_end", detail)``, for
+    the run's timeline of injected faults (docs/faults.md)."""
     out = []
     for i, p in enumerate(net.partitions):
         detail = {"index": i, "links": [list(link) for link in p.links], "start_s": p.start_s, "end_s": p.end_s}
@@ -89,6 +94,12 @@ def windows_between(net: NetworkConfig, t0: float, t1: float) -> list[tuple[str,
             out.append(("partition_start", detail))
         if t0 - 1e-9 <= p.end_s < t1 - 1e-9:
             out.append(("partition_end", detail))
+    for i, s in enumerate(getattr(net, "silence", ())):
+        detail = {"index": i, "robot": s.robot, "start_s": s.start_s, "end_s": s.end_s}
+        if t0 - 1e-9 <= s.start_s < t1 - 1e-9:
+            out.append(("silence_start", detail))
+        if t0 - 1e-9 <= s.end_s < t1 - 1e-9:
+            out.append(("silence_end", detail))
     return out
 
 

@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import json
 
+import pytest
+
 from copath.scenario import load_scenario
 from copath.wire.faults import windows_between
 from orchestrator.inprocess import run_scenario
@@ -48,3 +50,33 @@ def test_drops_and_partitions_are_events_and_the_settings_are_metadata(tmp_path)
     part = [e for e in injected if e.detail["partitioned"]]
     assert all(5.0 <= e.t <= 8.0 + 0.3 for e in part)  # stamped in the window, reported a step later
     assert {e.source for e in part} == {"r1", "r2"}
+
+
+def test_a_silent_radio_neither_sends_nor_receives_and_is_on_the_timeline(tmp_path):
+    toml = config("e5.5-").read_text()
+    path = tmp_path / "silent.toml"
+    path.write_text(toml + '\n[network]\nsilence = [{robot = "r2", start_s = 5.0, end_s = 10.0}]\n')
+    scen = load_scenario(path)
+    res = run_scenario(scen, duration_s=35.0)
+    log = read_log(write_records(tmp_path / "run.mcap", res.records, scen, "silence"))
+    assert json.loads(log.metadata["faults"]["network"])["silence"] == [{"robot": "r2", "start_s": 5.0, "end_s": 10.0}]
+    events = [r for _, _, r in log.records if getattr(r, "TYPE", "") == "event"]
+    assert [(e.what, e.t) for e in events if e.what.startswith("silence_")] == [("silence_start", 5.0),
+                                                                                ("silence_end", 10.0)]
+    silenced = [e for e in events if e.what == "faults_injected" and e.detail["silenced"]]
+    assert silenced and all(5.0 < e.t <= 10.0 + 0.15 for e in silenced)
+    by_receiver = {e.source for e in silenced}
+    assert by_receiver == {"r1", "r2", "r3"}  # r2 hears nothing, and nobody hears r2
+    assert all(set(e.detail["from"]) == {"r2"} for e in silenced if e.source != "r2")
+    assert res.metrics["fleet"]["messages_dropped_by_faults"] == sum(e.detail["silenced"] for e in silenced)
+    # coordination recovers after the silence
+    assert res.metrics["fleet"]["coordination_error_max_m"] < 0.05
+
+
+def test_a_silence_must_name_a_robot(tmp_path):
+    from copath.scenario import ConfigError
+
+    path = tmp_path / "bad.toml"
+    path.write_text(config("e5.5-").read_text() + '\n[network]\nsilence = [{robot = "r9", start_s = 1.0}]\n')
+    with pytest.raises(ConfigError, match=r"network.silence\[0\].robot = 'r9' is not allowed"):
+        load_scenario(path)

@@ -16,8 +16,13 @@ Per robot i and heard neighbour j (centre ``p_j`` from the neighbour's message, 
     n_ij^T pdot_i >= -(gamma / 2) h_ij,   n_ij = (p_i - p_j) / ||p_i - p_j||
 
 where ``s_j`` bounds the neighbour's speed, so ``s_j a_j`` is the distance it may have
-moved since it sent its position (with an assumed acceleration bound, a tighter disc around
-its extrapolated position, :class:`SafetyGuard`). The true direction to it is then within
+moved since it sent its position. When its model declares acceleration limits (enforced by
+the simulator) and its message carries its velocity, it lies instead within
+:func:`prediction_bound` of the arc predicted from that velocity (:func:`predict_position`),
+a tighter disc; with only an assumed ``accel_max_mps2``, within a disc around a two-sample
+extrapolation (:class:`SafetyGuard`). A robot whose own model declares ``a_max`` closes a gap
+at most at the speed from which it can still stop in its half (``braking``); docs/safety.md,
+"Acceleration limits". The true direction to it is then within
 ``kappa = 2 sin(asin(rho / d) / 2)`` of ``n_ij`` (``rho`` that distance, ``d`` the heard
 separation), so every neighbour row is tightened to ``n_ij^T pdot_i - kappa |pdot_i|``: two
 rows (both signs of v) for a unicycle, six (a polygon bound on the speed) for an omni robot.
@@ -94,7 +99,8 @@ class SafetyConfig:
     """Speed bound of every filtered robot [m/s]: each filter caps its own robot's speed at it and
     assumes it of its neighbours. None: no cap, neighbours bounded by their model's limit."""
     accel_max_mps2: float | None = None
-    """Assumed bound on every robot's acceleration [m/s^2] (not enforced). With it, a neighbour's
+    """Assumed bound on every robot's acceleration [m/s^2] (not enforced; a neighbour whose model
+    declares ``a_max`` and sends its velocity is predicted with that instead). With it, a neighbour's
     position is extrapolated with the velocity of its last two messages and inflated by
     accel_max_mps2 * (now - t_previous) * age when that is tighter than speed * age.
     None: speed bound only."""

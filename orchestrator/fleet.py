@@ -278,7 +278,10 @@ def run_fleet(scenario: Scenario, opts: RunOptions) -> RunOutcome:
                     break
                 # normal end: wait for the robots to send their closing accounts and exit
                 deadline = time.monotonic() + 30.0
-                while time.monotonic() < deadline and any(c.proc.poll() is None for c in children):
+                while time.monotonic() < deadline and any(
+                        c.proc.poll() is None and (policy == "fail" or c.name not in scenario.robot_names
+                                                   or c.name in ready)  # a frozen robot will not exit
+                        for c in children):
                     time.sleep(0.05)
                 stuck = [c.name for c in children if c.proc.poll() is None]
                 if policy != "fail":  # frozen robots the run went on without

@@ -364,8 +364,10 @@ class DMPCController:
             return False
         return True
 
-    def _receive(self, inbox: Sequence[PeerMessage], t: float) -> None:
-        for got in self.inbox.update(inbox, t):
+    def _receive(self, inbox: Sequence[PeerMessage], t: float, lost: frozenset[str] = frozenset()) -> None:
+        for name in lost:  # a lost neighbour's coupling term is dropped at once (docs/faults.md)
+            self.neighbour_traj.pop(name, None)
+        for got in self.inbox.update(inbox, t, lost):
             self.neighbour_traj[got.sender] = (got.stamp, _assumed_from(got.payload))
 
     def _wrap_near(self, value: np.ndarray, ref: np.ndarray) -> np.ndarray:
@@ -393,7 +395,7 @@ class DMPCController:
     # -- step ------------------------------------------------------------------------
     def step(self, obs: Observation, inbox: Sequence[PeerMessage]) -> StepResult:
         cfg, N, dt = self.cfg, self.cfg.horizon, self.dt
-        self._receive(inbox, obs.t)
+        self._receive(inbox, obs.t, obs.lost)
         pose = np.asarray(obs.pose, dtype=float)
         if self.s is None:
             self.s = self.path.project(pose[:2])

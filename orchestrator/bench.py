@@ -15,11 +15,15 @@ load next to them, are in ``benchmarks/README.md``.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
 import json
 import os
+import pathlib
+import shutil
+import tempfile
 import time
-from typing import Any, Callable, Sequence
+from typing import Any, Callable, Iterator, Sequence
 
 __all__ = ["SUBCOMMANDS", "main", "print_table", "machine", "emit"]
 
@@ -37,6 +41,18 @@ def machine() -> dict[str, Any]:
     """What a figure depends on: cores and the load average when it was measured."""
     load = os.getloadavg() if hasattr(os, "getloadavg") else (float("nan"),) * 3
     return {"cores": os.cpu_count(), "load_1min": round(load[0], 2), "time": time.strftime("%Y-%m-%d %H:%M:%S")}
+
+
+@contextlib.contextmanager
+def scratch_dir(out: str | None, name: str) -> Iterator[pathlib.Path]:
+    """The benchmark's run directory: ``out`` (kept) or a temporary one (removed afterwards)."""
+    root = pathlib.Path(out) if out is not None else pathlib.Path(tempfile.mkdtemp(prefix=f"copath-bench-{name}-"))
+    root.mkdir(parents=True, exist_ok=True)
+    try:
+        yield root
+    finally:
+        if out is None:
+            shutil.rmtree(root, ignore_errors=True)
 
 
 def print_table(rows: Sequence[dict[str, Any]], columns: Sequence[tuple[str, str, str]]) -> None:

@@ -20,8 +20,6 @@ from __future__ import annotations
 import argparse
 import math
 import pathlib
-import shutil
-import tempfile
 import time
 from typing import Any
 
@@ -126,21 +124,14 @@ def _measure(n: int, args: argparse.Namespace, root: pathlib.Path) -> dict[str, 
 
 def run(args: argparse.Namespace) -> int:
     """Run the benchmark and print one line per fleet size; 1 when a run failed."""
-    keep = args.out is not None
-    root = pathlib.Path(args.out) if keep else pathlib.Path(tempfile.mkdtemp(prefix="copath-bench-dmpc-"))
-    root.mkdir(parents=True, exist_ok=True)
-    rows = []
-    try:
-        for n in args.robots:
-            rows.append(_measure(n, args, root))
-    finally:
-        if not keep:
-            shutil.rmtree(root, ignore_errors=True)
-    from .bench import emit  # noqa: PLC0415
+    from .bench import emit, scratch_dir  # noqa: PLC0415
+
+    with scratch_dir(args.out, "dmpc") as root:
+        rows = [_measure(n, args, root) for n in args.robots]
 
     rows = [{k: (None if isinstance(v, float) and math.isnan(v) else v) for k, v in r.items()} for r in rows]
     emit(args, {"target_period_ms": args.dt * 1e3, "horizon": args.horizon, "duration_s": args.duration,
-                "runs": rows, "kept_in": str(root) if keep else None}, lambda res: _table(res, args))
+                "runs": rows, "kept_in": args.out}, lambda res: _table(res, args))
     return 0 if all(r["ok"] for r in rows) else 1
 
 

@@ -18,14 +18,12 @@ from __future__ import annotations
 
 import argparse
 import pathlib
-import shutil
 import subprocess
 import sys
-import tempfile
 import time
 from typing import Any
 
-from .bench import emit, print_table
+from .bench import emit, print_table, scratch_dir
 
 __all__ = ["add_arguments", "run"]
 
@@ -162,15 +160,12 @@ def _table(result: dict[str, Any]) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    root = pathlib.Path(tempfile.mkdtemp(prefix="copath-bench-latency-"))
     result: dict[str, Any] = {}
-    try:
+    with scratch_dir(None, "latency") as root:
         if not args.no_fleet:
             result["fleet"] = _fleet(args, root)
         if not args.no_recorder:
             result["recorder"] = [_recorder(args, root, views) for views in (False, True)]
-    finally:
-        shutil.rmtree(root, ignore_errors=True)
     emit(args, result, _table)
     ok = (result.get("fleet") or {}).get("ok", True) and all(r["lost"] == 0 for r in result.get("recorder") or ())
     return 0 if ok else 1

@@ -20,12 +20,10 @@ from __future__ import annotations
 import argparse
 import math
 import pathlib
-import shutil
-import tempfile
 import time
 from typing import Any
 
-from .bench import emit, print_table
+from .bench import emit, print_table, scratch_dir
 
 __all__ = ["add_arguments", "run", "scenario_table"]
 
@@ -131,13 +129,7 @@ def _table(result: dict[str, Any]) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    keep = args.out is not None
-    root = pathlib.Path(args.out) if keep else pathlib.Path(tempfile.mkdtemp(prefix="copath-bench-scale-"))
-    root.mkdir(parents=True, exist_ok=True)
-    try:
+    with scratch_dir(args.out, "scale") as root:
         rows = [_measure(n, args, root) for n in args.robots]
-    finally:
-        if not keep:
-            shutil.rmtree(root, ignore_errors=True)
     emit(args, {"args": {"dt": args.dt, "duration": args.duration, "settle": args.settle}, "runs": rows}, _table)
     return 0 if all(r["ok"] for r in rows) else 1

@@ -24,12 +24,12 @@ import csv
 import math
 import pathlib
 from dataclasses import dataclass
-from typing import Any, Callable, Sequence
+from typing import Callable, Sequence
 
 from copath.config import ConfigError
 from copath.targets import AT_MOST, TARGETS
 
-from . import api, sweep
+from . import sweep
 
 __all__ = ["Cell", "parse_cells", "parse_numbers", "grid", "headline_metric", "run_envelope", "cells_of",
            "format_envelope", "write_envelope_csv", "plot_envelope", "HEADLINE_ORDER"]
@@ -179,22 +179,14 @@ def write_envelope_csv(cells: Sequence[Cell], metric: str, path: pathlib.Path) -
                         "" if c.met is None else c.met, c.targets_met, c.targets_total])
 
 
-def _num(v: float | None) -> str:
-    if v is None:
-        return "-"
-    if float(v).is_integer() and abs(v) < 1e6:
-        return str(int(v))
-    return f"{v:.3g}"
-
-
 def format_envelope(cells: Sequence[Cell], metric: str) -> str:
     """One line per cell: delay, loss, runs, failed, mean/worst of the headline figure,
     its target met in every run, and the scenario's targets met over all runs."""
     head = ["delay ms", "loss", "runs", "failed", f"{metric} mean/worst", "target", "all targets"]
     table = [head]
     for c in cells:
-        tgt = "-" if c.met is None else f"{'met' if c.met else 'missed'} ({_num(c.target)})"
-        table.append([_num(c.delay_ms), f"{c.loss:g}", str(c.runs), str(c.failed), f"{_num(c.mean)}/{_num(c.worst)}",
+        tgt = "-" if c.met is None else f"{'met' if c.met else 'missed'} ({sweep.format_number(c.target)})"
+        table.append([sweep.format_number(c.delay_ms), f"{c.loss:g}", str(c.runs), str(c.failed), f"{sweep.format_number(c.mean)}/{sweep.format_number(c.worst)}",
                       tgt, f"{c.targets_met}/{c.targets_total}" if c.targets_total else "-"])
     widths = [max(len(row[i]) for row in table) for i in range(len(head))]
     lines = ["  ".join(s.rjust(w) for s, w in zip(row, widths)).rstrip() for row in table]
@@ -230,16 +222,16 @@ def plot_envelope(cells: Sequence[Cell], metric: str, path: pathlib.Path, title:
     for c in cells:
         i, j = delays.index(c.delay_ms), losses.index(c.loss)
         mark = "" if c.met is None else (" \u2713" if c.met else " \u2717")
-        ax.text(j, i, f"{_num(c.mean)}/{_num(c.worst)}{mark}", ha="center", va="center", fontsize=8,
+        ax.text(j, i, f"{sweep.format_number(c.mean)}/{sweep.format_number(c.worst)}{mark}", ha="center", va="center", fontsize=8,
                 color="black", bbox={"facecolor": "white", "alpha": 0.6, "edgecolor": "none", "pad": 1})
         if c.all_met:
             ax.add_patch(Rectangle((j - 0.48, i - 0.48), 0.96, 0.96, fill=False, edgecolor="limegreen", lw=3))
     ax.set_xticks(range(len(losses)), [f"{p:g}" for p in losses])
-    ax.set_yticks(range(len(delays)), [_num(d) for d in delays])
+    ax.set_yticks(range(len(delays)), [sweep.format_number(d) for d in delays])
     ax.set_xlabel("loss probability")
     ax.set_ylabel("delay [ms]")
     tgt = next((c.target for c in cells if c.target is not None), None)
-    sub = f"mean/worst; \u2713 every run meets {metric} {TARGETS[metric][1]} {_num(tgt)}" if tgt is not None \
+    sub = f"mean/worst; \u2713 every run meets {metric} {TARGETS[metric][1]} {sweep.format_number(tgt)}" if tgt is not None \
         else "mean/worst"
     ax.set_title(f"{title}\n{sub}; green frame: all targets met", fontsize=9)
     fig.tight_layout()

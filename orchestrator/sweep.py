@@ -210,7 +210,8 @@ def summarise(rows: list[SweepRow]) -> tuple[list[str], list[str], list[dict[str
     return skeys, fkeys, out
 
 
-def _num(v: float | None) -> str:
+def format_number(v: float | None) -> str:
+    """A table cell: '-' for None, integers without decimals, else three significant digits."""
     if v is None:
         return "-"
     if float(v).is_integer() and abs(v) < 1e6:
@@ -235,7 +236,7 @@ def format_summary(rows: list[SweepRow]) -> str:
     for g in groups:
         tgt = f"{g['targets_met']}/{g['targets_total']}" if g["targets_total"] else "-"
         table.append([*(g["setting"][k] for k in skeys), str(g["runs"]), str(g["failed"]), tgt,
-                      *(f"{_num(g['mean'][k])}/{_num(g['worst'][k])}" for k in fkeys)])
+                      *(f"{format_number(g['mean'][k])}/{format_number(g['worst'][k])}" for k in fkeys)])
     widths = [max(len(str(row[i])) for row in table) for i in range(len(head))]
     lines = ["  ".join(str(c).rjust(w) for c, w in zip(row, widths)).rstrip() for row in table]
     lines.insert(2, "-" * max(len(line) for line in lines))

@@ -11,3 +11,5 @@ from copath.control.contract import (  # noqa: F401
     RobotContext,
     StepResult,
 )
+
+__all__ = ["Controller", "Observation", "Outgoing", "PeerMessage", "RobotContext", "StepResult"]

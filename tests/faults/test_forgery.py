@@ -12,7 +12,7 @@ import msgpack
 import pytest
 
 from copath.wire.keys import Keys
-from copath.wire.messages import End, Obs, PeerEnvelope
+from copath.wire.messages import End, PeerEnvelope
 from copath.wire.session import SessionConfig, ZenohLink, free_port, loopback_endpoint
 from orchestrator.mcaplog import read_log
 from tests.conftest import config

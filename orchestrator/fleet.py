@@ -35,7 +35,7 @@ from copath.wire.keys import Keys
 from copath.wire.session import SessionConfig, ZenohLink, free_port, loopback_endpoint
 
 from .mcaplog import Recorder, fault_metadata, read_log, software_version
-from .metrics import compute_metrics, trace_from_records
+from .metrics import log_metrics
 from .progress import Progress
 
 logger = logging.getLogger(__name__)
@@ -322,16 +322,11 @@ def run_fleet(scenario: Scenario, opts: RunOptions) -> RunOutcome:
             live.close()
     wall = time.monotonic() - wall0
     log = read_log(out / "run.mcap")
-    stats = {r.proc: r for _, _, r in log.records if getattr(r, "TYPE", "") == "stats"}
-    published = sum(s.published for s in stats.values())
-    recorded = sum(1 for _, k, _ in log.records if not keys.relative(k).startswith("stats/")) + log.rejected
-    if ok and set(stats) | gone != {"sim", *scenario.robot_names}:
-        missing = sorted({"sim", *scenario.robot_names} - set(stats) - gone)
+    accounts = {r.proc for _, _, r in log.records if getattr(r, "TYPE", "") == "stats"}
+    if ok and accounts | gone != {"sim", *scenario.robot_names}:
+        missing = sorted({"sim", *scenario.robot_names} - accounts - gone)
         ok, reason = False, f"no closing account from {missing}"
-    trace = trace_from_records(log.records, keys)
-    metrics = compute_metrics(trace, scenario, run_id=opts.run_id, clock=scenario.run.clock, wall_time_s=wall,
-                              messages_published=published if ok else None, messages_recorded=recorded)
-    metrics["ok"] = ok
-    metrics["failure"] = None if ok else reason
+    metrics = log_metrics(log, scenario, run_id=opts.run_id, clock=scenario.run.clock, wall_time_s=wall, ok=ok,
+                          failure=reason)
     (out / "metrics.json").write_text(json.dumps(metrics, indent=2))
     return RunOutcome(ok, reason, out, metrics, pids)

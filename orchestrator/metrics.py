@@ -37,7 +37,7 @@ from copath.slots import track_coordinate
 
 from .metrics_truth import cross_track_series, team_geometry, truth_metrics, truth_series
 
-__all__ = ["RobotTrace", "Trace", "trace_from_records", "compute_metrics", "metrics_from_log", "METRIC_KEYS"]
+__all__ = ["RobotTrace", "Trace", "trace_from_records", "compute_metrics", "metrics_from_log", "log_metrics", "METRIC_KEYS"]
 
 ROBOT_KEYS = (
     "path_error_max_m",
@@ -439,16 +439,24 @@ def metrics_from_log(path) -> dict[str, Any]:
         scenario = parse_scenario(raw, base_dir=None, source=str(raw.get("_source", "")))
     except ConfigError as exc:
         raise ValueError(f"{path}: the recorded scenario does not parse: {exc}") from exc
-    keys = Keys(log.run_id)
-    stats = [r for _, _, r in log.records if isinstance(r, Stats)]
-    recorded = sum(1 for _, k, _ in log.records if not keys.relative(k).startswith("stats/")) + log.rejected
     outcome = log.metadata.get("outcome", {})
     ok = outcome.get("ok", "True") == "True"
-    trace = trace_from_records(log.records, keys)
-    m = compute_metrics(trace, scenario, run_id=log.run_id, clock=log.metadata.get("copath", {}).get("clock", ""),
-                        wall_time_s=float("nan"),
+    return log_metrics(log, scenario, run_id=log.run_id, clock=log.metadata.get("copath", {}).get("clock", ""),
+                       wall_time_s=None, ok=ok, failure=outcome.get("reason"))
+
+
+def log_metrics(log, scenario: Scenario, *, run_id: str, clock: str, wall_time_s: float | None, ok: bool,
+                failure: str | None) -> dict[str, Any]:
+    """metrics.json of a read-back log (:func:`orchestrator.mcaplog.read_log`): the one
+    computation behind ``copath run`` and ``copath metrics``. Messages published come from
+    the closing accounts (null for a failed run, whose accounts may be missing)."""
+    keys = Keys(run_id)
+    stats = [r for _, _, r in log.records if isinstance(r, Stats)]
+    recorded = sum(1 for _, k, _ in log.records if not keys.relative(k).startswith("stats/")) + log.rejected
+    m = compute_metrics(trace_from_records(log.records, keys), scenario, run_id=run_id, clock=clock,
+                        wall_time_s=float("nan") if wall_time_s is None else wall_time_s,
                         messages_published=sum(s.published for s in stats) if stats and ok else None,
                         messages_recorded=recorded)
     m["ok"] = ok
-    m["failure"] = None if ok else outcome.get("reason")
+    m["failure"] = None if ok else failure
     return m

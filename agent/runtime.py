@@ -27,7 +27,8 @@ import numpy as np
 
 from agent.controllers import build_controller
 from copath.control import Observation, PeerMessage, RobotContext
-from copath.estimation import PoseEKF, wrap
+from copath.estimation import PoseEKF
+from copath.paths import wrap_to_pi
 from copath.models import limit_change, world_velocity
 from copath.safety import SafetyGuard
 from copath.scenario import Scenario
@@ -128,6 +129,8 @@ class RobotRuntime:
         # without the filter
         self._overhear = (FaultyInbox(LinkFaults(scenario.network, scenario.run.seed + _OVERHEAR_SEED, name))
                           if self.safety is not None and scenario.safety.overhear else None)
+        self._listened = frozenset(scenario.robot_names if self.neighbours is None else self.neighbours)
+        """Senders whose envelopes also reach :meth:`receive` (which counts their bad stamps)."""
 
     @property
     def subscriptions(self) -> list[str]:
@@ -142,9 +145,15 @@ class RobotRuntime:
         return [self.keys.peer_broadcast("*"), self.keys.peer_direct("*", "*")]
 
     def overhear(self, env: PeerEnvelope) -> None:
-        """Accept an overheard envelope: only its sender's position and stamp are used."""
-        if (self._overhear is not None and env.sender != self.name
-                and (self._early is not None or self._stamp_ok(env, "overheard"))):  # no clock before the first step
+        """Accept an overheard envelope: only its sender's position and stamp are used.
+
+        Before the first step there is no clock to check a stamp against, so nothing is
+        overheard (the filter needs current positions, not ones from before a restart). A
+        neighbour's envelope also reaches :meth:`receive`, which counts a bad stamp; here
+        only the others' are counted, so one bad message is one reject."""
+        if self._overhear is None or env.sender == self.name or self._early is not None:
+            return
+        if self._stamp_ok(env, "overheard", record=env.sender not in self._listened):
             self.counters.extra["overheard"] = self.counters.extra.get("overheard", 0) + 1
             self._overhear.push(env.sender, env.stamp, env)
 
@@ -167,11 +176,12 @@ class RobotRuntime:
         if name != self.name:
             self.lost = self.lost - {name} if alive else self.lost | {name}  # replaced whole: thread-safe read
 
-    def _stamp_ok(self, env: PeerEnvelope, where: str) -> bool:
+    def _stamp_ok(self, env: PeerEnvelope, where: str, record: bool = True) -> bool:
         try:
             self.stamps.check(env.stamp, self._now)
         except WireError as exc:
-            self.reject_log.add(f"peer/{env.sender} ({where})", str(exc))
+            if record:
+                self.reject_log.add(f"peer/{env.sender} ({where})", str(exc))
             return False
         return True
 
@@ -180,7 +190,7 @@ class RobotRuntime:
         receiver's :class:`~copath.wire.trust.StampWindow` is rejected and counted."""
         if env.sender == self.name:
             return
-        if self.counters.steps == 0 and self._early is not None:  # no clock yet (a robot restarted mid-run)
+        if self._early is not None:  # no clock yet (a robot restarted mid-run)
             self._early.append(env)
             return
         if not self._stamp_ok(env, "peer"):
@@ -302,7 +312,7 @@ class RobotRuntime:
         if not cfg.estimator:
             if self._raw_pose is not None:
                 raw = raw.copy()
-                raw[2] = self._raw_pose[2] + wrap(raw[2] - self._raw_pose[2])
+                raw[2] = self._raw_pose[2] + wrap_to_pi(raw[2] - self._raw_pose[2])
             self._raw_pose = raw
             return raw, None
         if self.ekf is None:

@@ -33,6 +33,7 @@ import numpy as np
 
 from .config import ConfigError, from_table, require
 from .models import integrate_body_velocity
+from .paths import wrap_to_pi
 
 __all__ = [
     "SensorProfile",
@@ -43,13 +44,7 @@ __all__ = [
     "BUILTIN_PROFILES",
     "parse_sensing",
     "body_velocity",
-    "wrap",
 ]
-
-
-def wrap(a: float) -> float:
-    """Angle wrapped to [-pi, pi)."""
-    return (a + math.pi) % (2 * math.pi) - math.pi
 
 
 def body_velocity(kind: str, cmd: Sequence[float]) -> tuple[float, float, float]:
@@ -361,7 +356,7 @@ class PoseEKF:
             nu = m.z - x[:2]
         else:
             H, R = _H_HEAD, self.R_head
-            nu = np.array([wrap(float(m.z[0]) - x[2] - x[3])])
+            nu = np.array([wrap_to_pi(float(m.z[0]) - x[2] - x[3])])
         S = H @ P @ H.T + R
         Si = np.linalg.inv(S)
         d2 = float(nu @ Si @ nu)

@@ -45,7 +45,12 @@ __all__ = [
 
 
 def wrap_to_pi(a):
-    """Wrap angles to (-pi, pi] with atan2(sin, cos) (docs/conventions.md, C1)."""
+    """Wrap angles to (-pi, pi] with atan2(sin, cos) (docs/conventions.md, C1).
+
+    A Python number takes a scalar path (no numpy round trip: estimators call this per
+    measurement); arrays are wrapped element-wise."""
+    if isinstance(a, (float, int)):
+        return math.atan2(math.sin(a), math.cos(a))
     a = np.asarray(a, dtype=float)
     out = np.arctan2(np.sin(a), np.cos(a))
     return float(out) if out.ndim == 0 else out

@@ -23,7 +23,8 @@ from collections import deque
 
 import numpy as np
 
-from copath.estimation import SensorProfile, wrap
+from copath.estimation import SensorProfile
+from copath.paths import wrap_to_pi
 
 __all__ = ["RobotSensors"]
 
@@ -62,7 +63,7 @@ class RobotSensors:
             self.bias += p.heading_bias_walk * math.sqrt(t - self._t_bias) * float(self.rng.normal())
         self._t_bias = max(self._t_bias, t)
         n = float(self.rng.normal(0.0, p.heading_std_rad)) if p.heading_std_rad > 0 else 0.0
-        return wrap(theta + self.bias + n)
+        return wrap_to_pi(theta + self.bias + n)
 
     # -- driven by the world ----------------------------------------------------------
     def advance(self, t0: float, pose0: np.ndarray, applied: np.ndarray, dt: float) -> None:

@@ -55,7 +55,6 @@ class World:
             for j, i in enumerate(g.rows):
                 self.requested[self.names[i]] = g.req[j]  # row views
                 self.applied[self.names[i]] = g.app[j]
-        self.violated = {r.name: False for r in scenario.robots}
         self.t = 0.0
         self._step_dt = scenario.run.dt
         self._noise_rng = np.random.default_rng(np.random.SeedSequence([scenario.run.seed, 101]))
@@ -85,7 +84,7 @@ class World:
         acceleration limit, rate-limited) command."""
         self.saturate_all(dt)
         for n, sensors in self.sensing.items():
-            sensors.advance(self.t, self.poses[n].copy(), self.applied[n].copy(), dt)
+            sensors.advance(self.t, self.poses[n], self.applied[n], dt)  # read only, nothing kept
         self._P[:] = integrate_body_velocities(self._P, self._B, dt)
         for g in self._groups:
             g.commit()
@@ -102,7 +101,6 @@ class World:
         dt = self._step_dt if dt is None else dt
         for g in self._groups:
             g.saturate(self._B, self._viol, dt)
-        self.violated = dict(zip(self.names, self._viol.tolist()))
 
     # -- observations -----------------------------------------------------------------
     def obstacle_polygons(self, t: float | None = None) -> list[np.ndarray]:

@@ -134,15 +134,6 @@ class ZenohLink:
         """Messages rejected so far (schema, origin, or a callback that raised)."""
         return self.reject_log.total
 
-    @rejects.setter
-    def rejects(self, value: int) -> None:  # ``link.rejects += 1`` (a caller's own count)
-        for _ in range(int(value) - self.reject_log.total):
-            self.reject_log.add("", "counted by the caller")
-
-    def reject(self, key: str, message: str) -> None:
-        """Count a message rejected after delivery (e.g. a stamp outside the window)."""
-        self.reject_log.add(key, message)
-
     @classmethod
     def open(cls, conf: SessionConfig) -> "ZenohLink":
         return cls(open_session(conf), declare_publishers=not conf.authenticated)

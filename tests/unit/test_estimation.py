@@ -10,7 +10,8 @@ import pytest
 from scipy.stats import chi2
 
 from copath.config import ConfigError
-from copath.estimation import BUILTIN_PROFILES, EstimatorConfig, PoseEKF, SensorProfile, parse_sensing, wrap
+from copath.estimation import BUILTIN_PROFILES, EstimatorConfig, PoseEKF, SensorProfile, parse_sensing
+from copath.paths import wrap_to_pi
 from copath.models import OmniModel, UnicycleModel
 from sim.sensing import RobotSensors
 
@@ -45,7 +46,7 @@ def _closed_loop_run(seed: int, model, cmd_of, n_steps: int, profile: SensorProf
         raw, meas = sensors.read(t)
         res = ekf.step(t, meas["odom"], meas["fixes"], meas["headings"])
         e = res.pose - pose
-        e[2] = wrap(e[2])
+        e[2] = wrap_to_pi(e[2])
         errs.append(e)
         covs.append(res.P[:3, :3])
     return np.array(errs), np.array(covs)
@@ -151,7 +152,7 @@ def test_compass_bias_is_estimated():
         _, m = sensors.read((k + 1) * DT)
         res = ekf.step((k + 1) * DT, m["odom"], m["fixes"], m["headings"])
     assert res.x[3] == pytest.approx(0.15, abs=0.03)
-    assert abs(wrap(res.x[2] - pose[2])) < 0.03
+    assert abs(wrap_to_pi(res.x[2] - pose[2])) < 0.03
 
 
 def test_predict_ahead_follows_the_command():

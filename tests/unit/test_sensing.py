@@ -8,7 +8,8 @@ import math
 import numpy as np
 import pytest
 
-from copath.estimation import SensorProfile, wrap
+from copath.estimation import SensorProfile
+from copath.paths import wrap_to_pi
 from copath.models import OmniModel, UnicycleModel
 from copath.scenario import load_scenario
 from copath.wire.messages import Estimate, Obs, PeerEnvelope, WireError, unpack
@@ -57,7 +58,7 @@ def test_fixes_come_at_their_rate_stamped_and_delayed():
     err = np.array([np.subtract(f[1:], truth(f[0])[:2]) for _, f in fixes])
     assert np.mean(err, axis=0) == pytest.approx([0, 0], abs=0.006)
     assert np.std(err, axis=0) == pytest.approx([0.02, 0.02], rel=0.15)  # measured at the pose when taken
-    herr = np.array([wrap(h[1] - truth(h[0])[2]) for _, h in heads])
+    herr = np.array([wrap_to_pi(h[1] - truth(h[0])[2]) for _, h in heads])
     assert np.std(herr) == pytest.approx(0.05, rel=0.2)
 
 
@@ -68,7 +69,7 @@ def test_outliers_and_bias_drift():
     fixes = [f for _, _, m in reads for f in m["fixes"]]
     far = sum(np.hypot(*np.subtract(f[1:], truth(f[0])[:2])) > 0.1 for f in fixes)
     assert s.outliers == pytest.approx(0.1 * len(fixes), rel=0.35) and far >= 0.8 * s.outliers
-    bias = np.array([wrap(h[1] - truth(h[0])[2]) for _, _, m in reads for h in m["headings"]])
+    bias = np.array([wrap_to_pi(h[1] - truth(h[0])[2]) for _, _, m in reads for h in m["headings"]])
     assert bias[0] == pytest.approx(0.1, abs=0.02)
     assert np.std(np.diff(bias)) == pytest.approx(0.02 * math.sqrt(1 / 25.0), rel=0.2)  # a random walk
 

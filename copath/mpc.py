@@ -134,8 +134,9 @@ def qp_options(qp_solver: str, **extra) -> dict:
 def jit_options(flags: Sequence[str] = ("-O2",)) -> dict:
     """CasADi options that JIT-compile a Function with the system C compiler (``shell``);
     a saved Function carries its binary (the solver cache, ``copath.solver_cache``)."""
-    return {"jit": True, "compiler": "shell", "jit_options": {"flags": list(flags), "verbose": False},
-            "jit_serialize": "embed"}
+    from .solver_cache import EMBED  # noqa: PLC0415
+
+    return {"jit": True, "compiler": "shell", "jit_options": {"flags": list(flags), "verbose": False}, **EMBED}
 
 # statuses whose iterate is used when it is feasible (a warm-started SQP that stops on
 # its iteration limit still returns a usable, constraint-satisfying plan)
@@ -152,8 +153,7 @@ def jit_available() -> bool:
 
             x = ca.SX.sym("x")
             f = solver_cache.cached_function("jit_probe", solver_cache.solver_key("jit_probe"), lambda: ca.Function(
-                "jit_probe", [x], [x * x], {"jit": True, "compiler": "shell", "jit_options": {"verbose": False},
-                                            "jit_serialize": "embed"}))
+                "jit_probe", [x], [x * x], jit_options(())))
             _JIT_OK = abs(float(f(3.0)) - 9.0) < 1e-12
         except Exception as exc:  # no compiler, no write access, ...
             logger.info("CasADi JIT unavailable, using the virtual machine: %s", exc)

@@ -28,13 +28,14 @@ from typing import Any
 
 import numpy as np
 
+from copath.paths import wrap_to_pi
 from copath.scenario import Scenario
+from copath.slots import track_coordinate
 from copath.wire.keys import Keys
 from copath.wire.messages import Command, End, Estimate, Event, Stats, Telemetry, Truth
 
+from .figures import json_number as _f
 from .metrics_estimation import ESTIMATION_KEYS, estimation_metrics
-from copath.slots import track_coordinate
-
 from .metrics_truth import cross_track_series, team_geometry, truth_metrics, truth_series
 
 __all__ = ["RobotTrace", "Trace", "trace_from_records", "compute_metrics", "metrics_from_log", "log_metrics", "METRIC_KEYS"]
@@ -224,10 +225,6 @@ def _deadline(counters: dict | None, clock: str) -> tuple[int | None, int]:
     return int(counters.get("deadline_misses", 0) or 0), int(counters.get("realtime_periods", 0) or 0)
 
 
-def _f(x) -> float | None:
-    return None if x is None or not np.isfinite(x) else round(float(x), 6)
-
-
 def _robot_metrics(rt: RobotTrace, settle: float, model_kind: str, missed: int) -> dict[str, Any]:
     m: dict[str, Any] = dict.fromkeys(ROBOT_KEYS)
     tel_t = rt.telemetry_t
@@ -242,7 +239,7 @@ def _robot_metrics(rt: RobotTrace, settle: float, model_kind: str, missed: int) 
         m["path_error_max_m"] = _f(e.max())
         m["path_error_rms_m"] = _f(np.sqrt(np.mean(e**2)))
         if ref.shape[1] >= 3:
-            he = np.abs(np.arctan2(np.sin(p[:, 2] - ref[:, 2]), np.cos(p[:, 2] - ref[:, 2])))
+            he = np.abs(wrap_to_pi(p[:, 2] - ref[:, 2]))
             m["heading_error_max_rad"] = _f(he.max())
     se = [d["speed_error"] for t, d in zip(tel_t, rt.telemetry)
           if d.get("speed_error") is not None and t >= settle - 1e-9]

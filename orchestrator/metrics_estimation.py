@@ -22,6 +22,10 @@ from typing import Any
 import numpy as np
 from scipy.stats import chi2
 
+from copath.paths import wrap_to_pi
+
+from .figures import json_number as _f
+
 __all__ = ["ESTIMATION_KEYS", "estimation_metrics", "estimate_series"]
 
 ESTIMATION_KEYS = (
@@ -32,10 +36,6 @@ ESTIMATION_KEYS = (
     "estimate_nees_within_95",
     "measurements_rejected",
 )
-
-
-def _f(x) -> float | None:
-    return None if x is None or not np.isfinite(x) else round(float(x), 6)
 
 
 def estimate_series(estimates, truth_at) -> dict[str, np.ndarray] | None:
@@ -53,7 +53,7 @@ def estimate_series(estimates, truth_at) -> dict[str, np.ndarray] | None:
     cov = np.array([np.asarray(r.cov, dtype=float)[:3, :3] for r in recs])
     true = truth_at(t)
     err = est - true
-    err[:, 2] = np.arctan2(np.sin(err[:, 2]), np.cos(err[:, 2]))
+    err[:, 2] = wrap_to_pi(err[:, 2])
     return {"t": t, "est": est, "true": true, "cov": cov, "err": err}
 
 

@@ -47,6 +47,8 @@ from copath.paths import Path
 from copath.scenario import Scenario
 from copath.slots import offset_points, solve_coordinate, switching_offsets, track_coordinate, wrap_near
 
+from .figures import json_number as _f
+
 logger = logging.getLogger(__name__)
 
 __all__ = ["TeamGeometry", "TruthSeries", "team_geometry", "truth_series", "truth_metrics", "cross_track_series",
@@ -307,10 +309,6 @@ def _until_arrived(window: np.ndarray, error: np.ndarray, tol: float) -> np.ndar
         stop = k + arrived[0] if len(arrived) else len(out)
         out[k:stop] = True
     return out
-
-
-def _f(x) -> float | None:
-    return None if x is None or not np.isfinite(x) else round(float(x), 6)
 
 
 def truth_metrics(trace, scenario: Scenario, series: TruthSeries | None = None) -> dict[str, Any]:

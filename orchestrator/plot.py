@@ -51,6 +51,7 @@ import numpy as np  # noqa: E402
 from matplotlib.collections import LineCollection  # noqa: E402
 from matplotlib.patches import Circle, Polygon  # noqa: E402
 
+from copath.paths import wrap_to_pi  # noqa: E402
 from copath.scenario import Scenario, parse_scenario  # noqa: E402
 from copath.wire.keys import Keys  # noqa: E402
 from copath.wire.messages import Command, PeerEnvelope, Truth  # noqa: E402
@@ -130,7 +131,7 @@ def _tracking(rt) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
     ref = np.array([r[1][:width] for r in rows], dtype=float)
     p = rt.pose_at(t)
     e = np.hypot(p[:, 0] - ref[:, 0], p[:, 1] - ref[:, 1])
-    he = np.abs(np.arctan2(np.sin(p[:, 2] - ref[:, 2]), np.cos(p[:, 2] - ref[:, 2]))) if width >= 3 else None
+    he = np.abs(wrap_to_pi(p[:, 2] - ref[:, 2])) if width >= 3 else None
     return t, e, he
 
 

@@ -62,6 +62,10 @@ class ControllerFactory:
 
     def validate(self, ctx: RobotContext) -> list[str]:
         """Every problem of this robot's controller set-up, as one-line messages."""
+        return self._checked(ctx)[0]
+
+    def _checked(self, ctx: RobotContext) -> tuple[list[str], Any]:
+        """(problems, parsed config or None): one parse serves the check and the build."""
         errors: list[str] = []
         where = f"robots.{ctx.name}"
         if self.needs_path and ctx.path is None:
@@ -74,19 +78,19 @@ class ControllerFactory:
             cfg = self.parse(ctx)
         except ConfigError as exc:
             errors.append(str(exc))
-            return errors
+            return errors, None
         if self.check is not None and not errors:
             try:
                 self.check(ctx, cfg)
             except (ConfigError, ValueError) as exc:
                 errors.append(str(exc) if isinstance(exc, ConfigError) else f"{where}.controller: {exc}")
-        return errors
+        return errors, cfg
 
     def __call__(self, ctx: RobotContext) -> Controller:
-        errors = self.validate(ctx)
+        errors, cfg = self._checked(ctx)
         if errors:
             raise ConfigError("; ".join(errors))
-        return self.build(ctx, self.parse(ctx))
+        return self.build(ctx, cfg)
 
 
 def controller(*, config: type | None = None, needs_path: bool = False, models: tuple[str, ...] | None = None,

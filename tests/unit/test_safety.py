@@ -428,3 +428,30 @@ def test_peer_envelope_carries_the_velocity_and_old_envelopes_stay_readable():
     assert unpack(msgpack.packb(old, use_bin_type=True)).vel is None
     with pytest.raises(WireError, match="peer.vel"):
         PeerEnvelope.from_dict({**env.to_dict(), "vel": [0.2, 0.1]})
+
+
+@pytest.mark.parametrize("model", [
+    {"type": "unicycle", "v_max": 0.5, "omega_max": 1.0, "a_max": 0.3, "alpha_max": 1.0},
+    {"type": "omni", "a_max": 1.0, "alpha_max": 4.0},
+    {"type": "unicycle", "v_max": 0.5, "omega_max": 1.0},
+    {"type": "omni"},
+])
+def test_simulator_rows_apply_exactly_what_the_model_methods_do(model):
+    """The simulator saturates and rate-limits all robots at once (row-wise); a robot
+    predicts its own applied command, and so the velocity it sends, with the models'
+    single-robot methods. The filter's prediction bound needs the two to agree."""
+    from copath.models import limit_change
+
+    w = _world(model, n=3)
+    rng = np.random.default_rng(7)
+    prev = {n: np.zeros(len(w.applied[n])) for n in w.applied}
+    for _ in range(40):
+        cmds = {n: rng.uniform(-3, 3, size=len(prev[n])) for n in prev}
+        for n, c in cmds.items():
+            w.command(n, c)
+        w.advance(0.1)
+        for n, c in cmds.items():
+            m = w.models[n]
+            expect = limit_change(m, prev[n], m.saturate(c)[0], 0.1)
+            np.testing.assert_allclose(w.applied[n], expect, rtol=0, atol=1e-12)
+            prev[n] = expect

@@ -350,13 +350,11 @@ def run(scenario: Scenario | str | pathlib.Path, overrides: Mapping[str, Any] | 
                 write_records(out / "run.mcap", res.records, sc, rid)
         return Run(sc, res.metrics, res.records, out)
     from .fleet import RunOptions, run_fleet
-    from .mcaplog import read_log
 
     out = pathlib.Path(out_dir) if out_dir is not None else pathlib.Path("runs") / rid
     outcome = run_fleet(sc, RunOptions(out_dir=out, run_id=rid, progress=progress, connect=tuple(connect),
                                        listen=tuple(listen), wall_timeout_s=wall_timeout_s))
-    records = read_log(out / "run.mcap").records if (out / "run.mcap").is_file() else []
-    return Run(sc, outcome.metrics or {}, records, out, outcome.ok, outcome.reason)
+    return Run(sc, outcome.metrics or {}, outcome.records, out, outcome.ok, outcome.reason)
 
 
 def open_run(path: str | pathlib.Path) -> Run:

@@ -64,13 +64,12 @@ def _fleet(args: argparse.Namespace, root: pathlib.Path) -> dict[str, Any]:
 
     from .bench_scale import scenario_table  # noqa: PLC0415
     from .fleet import RunOptions, new_run_id, run_fleet  # noqa: PLC0415
-    from .mcaplog import read_log  # noqa: PLC0415
     from .metrics import trace_from_records  # noqa: PLC0415
 
     sc = parse_scenario(scenario_table(args.robots, 1.0 / args.rate, args.duration, 0.5 * args.duration))
     rid = new_run_id(f"bench-latency-{args.robots}")
     outcome = run_fleet(sc, RunOptions(out_dir=root / rid, run_id=rid, progress=False, start_timeout_s=600.0))
-    trace = trace_from_records(read_log(outcome.out_dir / "run.mcap").records, Keys(rid))
+    trace = trace_from_records(outcome.records, Keys(rid))
     agents = [s for p, s in trace.stats.items() if p != "sim"]
     p50 = sorted(s["peer_age_ms_p50"] for s in agents if "peer_age_ms_p50" in s)
     p99 = [s["peer_age_ms_p99"] for s in agents if "peer_age_ms_p99" in s]

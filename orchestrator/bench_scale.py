@@ -76,7 +76,6 @@ def _measure(n: int, args: argparse.Namespace, root: pathlib.Path) -> dict[str, 
 
     from .bench_fleet import _startup_s  # noqa: PLC0415
     from .fleet import RunOptions, new_run_id, run_fleet  # noqa: PLC0415
-    from .mcaplog import read_log  # noqa: PLC0415
     from .metrics import trace_from_records  # noqa: PLC0415
 
     sc = parse_scenario(scenario_table(n, args.dt, args.duration, args.settle))
@@ -89,7 +88,7 @@ def _measure(n: int, args: argparse.Namespace, root: pathlib.Path) -> dict[str, 
     fleet = m.get("fleet") or {}
     stats = {}
     if (outcome.out_dir / "run.mcap").is_file():
-        stats = trace_from_records(read_log(outcome.out_dir / "run.mcap").records, Keys(rid)).stats
+        stats = trace_from_records(outcome.records, Keys(rid)).stats
     agents = [s for p, s in stats.items() if p != "sim"]
     rss = [s["peak_rss_mb"] for s in agents if s.get("peak_rss_mb") is not None]
     age99 = [s["peer_age_ms_p99"] for s in agents if s.get("peer_age_ms_p99") is not None]

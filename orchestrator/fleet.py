@@ -78,6 +78,8 @@ class RunOutcome:
     out_dir: pathlib.Path
     metrics: dict[str, Any] | None = None
     pids: dict[str, int] = field(default_factory=dict)
+    records: list = field(default_factory=list, repr=False)
+    """Every record of the run, as read back from its log for the metrics (decoded once)."""
 
 
 @dataclass
@@ -329,4 +331,4 @@ def run_fleet(scenario: Scenario, opts: RunOptions) -> RunOutcome:
     metrics = log_metrics(log, scenario, run_id=opts.run_id, clock=scenario.run.clock, wall_time_s=wall, ok=ok,
                           failure=reason)
     (out / "metrics.json").write_text(json.dumps(metrics, indent=2))
-    return RunOutcome(ok, reason, out, metrics, pids)
+    return RunOutcome(ok, reason, out, metrics, pids, log.records)

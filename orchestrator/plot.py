@@ -58,7 +58,7 @@ from copath.wire.messages import Command, PeerEnvelope, Truth  # noqa: E402
 
 from .mcaplog import read_log  # noqa: E402
 from .metrics import Trace, trace_from_records  # noqa: E402
-from .viz import FaultReplay, foxglove_layout  # noqa: E402
+from .viz import FaultReplay, communication_links, foxglove_layout  # noqa: E402
 from .metrics_estimation import estimate_series  # noqa: E402
 
 __all__ = ["RunView", "load_run", "FAMILIES", "applicable", "plot_run", "animate_run"]
@@ -231,14 +231,8 @@ def _draw_robots(ax, view: RunView, truth: Truth, alpha: float = 1.0, label: str
 
 
 def _links(view: RunView, t: float, pos: dict) -> list[tuple[str, str]]:
-    net = view.scenario.network
-    names = [n for n in view.scenario.robot_names if n in pos]
-    if len(names) < 2:
-        return []
-    if net.range_m > 0:
-        return [(a, b) for k, a in enumerate(names) for b in names[k + 1:]
-                if math.dist(pos[a][:2], pos[b][:2]) <= net.range_m]
-    return [(a, b) for a, b in view.scenario.edges() if a in pos and b in pos]
+    """Links up at ``t`` (a partition's cut links are not drawn), as in the Foxglove view."""
+    return communication_links(view.scenario, t, pos)[0]
 
 
 def _limits(ax, view: RunView) -> None:

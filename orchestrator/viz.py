@@ -119,6 +119,24 @@ def _log(t: float, level: fm.LogLevel, name: str, message: str) -> fm.Log:
     return fm.Log(timestamp=_time(t), level=level, message=message, name=name)
 
 
+def communication_links(scenario: Scenario, t: float, poses: dict,
+                        edges: list[tuple[str, str]] | None = None) -> tuple[list, list]:
+    """Links (a, b) up and cut by a partition at ``t``: the graph edges, or the pairs
+    within ``network.range_m`` of each other (Def. 10); only robots with a pose count.
+    The one definition behind the Foxglove link view and the snapshot figures."""
+    net = scenario.network
+    if net.range_m > 0:
+        names = [n for n in scenario.robot_names if n in poses]
+        pairs = [(a, b) for k, a in enumerate(names) for b in names[k + 1:]
+                 if math.dist(poses[a][:2], poses[b][:2]) <= net.range_m]
+    else:
+        pairs = [tuple(e) for e in (scenario.edges() if edges is None else edges) if e[0] in poses and e[1] in poses]
+    cut = {frozenset(link) for p in net.partitions if p.start_s <= t < p.end_s for link in p.links}
+    up = [e for e in pairs if frozenset(e) not in cut]
+    down = [e for e in pairs if frozenset(e) in cut]
+    return up, down
+
+
 class FaultReplay:
     """The fault layer's decisions, recovered from the published peer messages.
 
@@ -320,19 +338,8 @@ class VizBuilder:
         return fm.SceneUpdate(entities=[_entity(t, "ranges", lines=lines)])
 
     def communication_graph(self, t: float, poses: dict) -> tuple[list, list]:
-        """Links (a, b) up and cut by a partition at ``t``: the graph edges, or the
-        pairs within ``network.range_m`` of each other (Def. 10)."""
-        net = self.scenario.network
-        if net.range_m > 0:
-            names = [n for n in self.names if n in poses]
-            pairs = [(a, b) for k, a in enumerate(names) for b in names[k + 1:]
-                     if math.dist(poses[a][:2], poses[b][:2]) <= net.range_m]
-        else:
-            pairs = [tuple(e) for e in self.edges]
-        cut = {frozenset(link) for p in net.partitions if p.start_s <= t < p.end_s for link in p.links}
-        up = [e for e in pairs if frozenset(e) not in cut]
-        down = [e for e in pairs if frozenset(e) in cut]
-        return up, down
+        """Links up and cut at ``t`` (:func:`communication_links`)."""
+        return communication_links(self.scenario, t, poses, self.edges)
 
     def _links(self, t: float, poses: dict) -> fm.SceneUpdate:
         up, down = self.communication_graph(t, poses)

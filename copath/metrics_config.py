@@ -4,7 +4,7 @@ docs/metrics.md)."""
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from typing import Any, Mapping
 
 from .config import from_table, require
@@ -49,7 +49,9 @@ class MetricsConfig:
 
 
 def parse_metrics(table: Mapping[str, Any] | None, robots: tuple[str, ...] = ()) -> dict[str, Any]:
-    """The ``[metrics]`` table, validated (ConfigError naming the key), as given.
+    """The ``[metrics]`` table, validated (ConfigError naming the key), with every option
+    present (the defaults of :class:`MetricsConfig` fill what the table leaves out), so
+    readers index it and no default is written twice.
 
     With ``robots``, the offset tables must name exactly those robots (each with a path)."""
     cfg = from_table(MetricsConfig, table, "metrics")
@@ -59,4 +61,4 @@ def parse_metrics(table: Mapping[str, Any] | None, robots: tuple[str, ...] = ())
     if robots and cfg.lateral_offsets is not None:
         require(set(cfg.lateral_offsets) <= set(robots), "metrics.lateral_offsets", cfg.lateral_offsets,
                 f"must name robots of this scenario: {', '.join(robots)}")
-    return dict(table or {})
+    return {f.name: getattr(cfg, f.name) for f in fields(cfg)}

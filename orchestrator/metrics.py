@@ -290,7 +290,7 @@ def _coordination_reported(trace: Trace, scenario: Scenario, settle: float):
     if len(grid) == 0:
         return None, None
     vals = {n: np.interp(grid, a[:, 0], a[:, 1]) for n, a in xs.items()}
-    if scenario.metrics.get("coordination_pairs", "all") == "edges":
+    if scenario.metrics["coordination_pairs"] == "edges":
         pairs = [(a, b) for a, b in scenario.edges() if a in vals and b in vals]
     else:
         pairs = list(itertools.combinations(sorted(vals), 2))

@@ -42,7 +42,6 @@ from typing import Any, Callable
 import numpy as np
 
 from copath.config import ConfigError, from_table
-from copath.metrics_config import MetricsConfig
 from copath.paths import Path
 from copath.scenario import Scenario
 from copath.slots import offset_points, solve_coordinate, switching_offsets, track_coordinate, wrap_near
@@ -219,10 +218,6 @@ def _declared(scenario: Scenario) -> TeamGeometry:
         in_transition=_no_transition, period=period)
 
 
-FORMATION_TOLERANCE_M = MetricsConfig.formation_tolerance_m
-"""A formation change is over when every robot is this close to its new slot [m]
-(``[metrics] formation_tolerance_m``; chosen as the controllers' arrival tolerance)."""
-
 FAMILIES: dict[frozenset, Callable[[Scenario], TeamGeometry]] = {
     frozenset({"consensus"}): _consensus,
     frozenset({"dmpc"}): _dmpc,
@@ -265,7 +260,7 @@ class TruthSeries:
 
 
 def _pairs(scenario: Scenario, names: list[str]) -> list[tuple[str, str]]:
-    if scenario.metrics.get("coordination_pairs", "all") == "edges":
+    if scenario.metrics["coordination_pairs"] == "edges":
         return [(a, b) for a, b in scenario.edges() if a in names and b in names]
     return list(itertools.combinations(sorted(names), 2))
 
@@ -294,7 +289,7 @@ def truth_series(trace, scenario: Scenario, geometry: TeamGeometry | None = None
     form = {n: np.hypot(*(trace.robots[n].pose[:T, :2] - P).T) for n, P in slots.items() if n in S}
     moving = np.asarray(geo.in_transition(xi_ref), dtype=bool)
     if form and moving.any():
-        tol = float(scenario.metrics.get("formation_tolerance_m", FORMATION_TOLERANCE_M))
+        tol = float(scenario.metrics["formation_tolerance_m"])
         moving = _until_arrived(moving, np.max(list(form.values()), axis=0), tol)
     return TruthSeries(t, S, XI, xi_ref, coord, form, moving)
 

@@ -189,4 +189,6 @@ def test_metrics_table_is_validated(e55, table, key):
 
     with pytest.raises(ConfigError, match=key.replace(".", r"\.")):
         parse_scenario(dict(e55.raw, metrics=table))
-    assert parse_scenario(dict(e55.raw, metrics={"task_tolerance_m": 0.03})).metrics == {"task_tolerance_m": 0.03}
+    m = parse_scenario(dict(e55.raw, metrics={"task_tolerance_m": 0.03})).metrics
+    assert m["task_tolerance_m"] == 0.03  # as given; the other options at their defaults
+    assert m["coordination_pairs"] == "all" and m["formation_tolerance_m"] == 0.05 and m["path_offsets"] is None

@@ -345,8 +345,7 @@ class DMPCController:
         self.s: float | None = cfg.s0
         self.theta_t: float | None = None
         self.u_R = 0.0
-        self.inbox = LatestMessages(kinds=(MESSAGE_KIND,), senders=self.nbrs, accept=self._valid)
-        self.neighbour_traj: dict[str, tuple[float, AssumedTrajectory]] = {}  # name -> (stamp, psi traj)
+        self.inbox = LatestMessages(kinds=(MESSAGE_KIND,), senders=self.nbrs, decode=self._decode)
         self.own_assumed: AssumedTrajectory | None = None
         self._last: tuple[float, np.ndarray] | None = None  # (t_k, predicted X) of the last solve
         self.k = 0
@@ -355,20 +354,23 @@ class DMPCController:
     def _u_r(self, kap) -> Any:
         return self.u_o * (1.0 - kap * self.q)  # (5.11)
 
-    def _valid(self, m: PeerMessage) -> bool:
-        """An ``assumed_traj`` payload that can be used (a bad one is logged and ignored)."""
+    def _decode(self, m: PeerMessage) -> AssumedTrajectory:
+        """A neighbour's assumed trajectory, decoded once when it arrives (a bad one is
+        logged and ignored by the inbox)."""
         try:
-            _assumed_from(m.payload)
+            return _assumed_from(m.payload)
         except (KeyError, TypeError, ValueError) as exc:
             logger.warning("%s: bad %s from %s: %s", self.ctx.name, MESSAGE_KIND, m.sender, exc)
-            return False
-        return True
+            raise
 
     def _receive(self, inbox: Sequence[PeerMessage], t: float, lost: frozenset[str] = frozenset()) -> None:
-        for name in lost:  # a lost neighbour's coupling term is dropped at once (docs/faults.md)
-            self.neighbour_traj.pop(name, None)
-        for got in self.inbox.update(inbox, t, lost):
-            self.neighbour_traj[got.sender] = (got.stamp, _assumed_from(got.payload))
+        # a lost neighbour's kept trajectory is forgotten at once, so its coupling term drops (docs/faults.md)
+        self.inbox.update(inbox, t, lost)
+
+    @property
+    def neighbour_traj(self) -> dict[str, tuple[float, AssumedTrajectory]]:
+        """Neighbour -> (stamp, assumed trajectory) of its newest usable message."""
+        return {g.sender: (g.stamp, g.value) for g in self.inbox.of_kind(MESSAGE_KIND).values()}
 
     def _wrap_near(self, value: np.ndarray, ref: np.ndarray) -> np.ndarray:
         if self.psi_period <= 0:
@@ -432,11 +434,11 @@ class DMPCController:
         psi_guess = self.morph.psi(s_guess[:N])
         used = 0
         for j, name in enumerate(self.nbrs):
-            entry = self.neighbour_traj.get(name)
-            if entry is None or obs.t - entry[0] > cfg.stale_after_s:
+            got = self.inbox.get(name, MESSAGE_KIND)
+            if got is None or obs.t - got.stamp > cfg.stale_after_s:
                 continue
             p_ij = cfg.offset(name) - self.psi_d
-            target = self._wrap_near(entry[1].at(times) - p_ij, psi_guess)
+            target = self._wrap_near(got.value.at(times) - p_ij, psi_guess)
             P[:, 5 + 2 * j] = target
             P[:, 6 + 2 * j] = 1.0
             used += 1

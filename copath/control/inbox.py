@@ -45,6 +45,8 @@ class Received:
     message: PeerMessage
     received_at: float
     """Receiver's clock at the step that took the message in [s]."""
+    value: Any = None
+    """The message decoded once by the inbox's ``decode`` (None without one)."""
 
     @property
     def sender(self) -> str:
@@ -92,6 +94,10 @@ class LatestMessages:
     accept : callable (PeerMessage) -> bool, optional
         Extra check of a newer message (e.g. a payload that can be used); a message it
         rejects is ignored as if it had not arrived, so the kept one stays.
+    decode : callable (PeerMessage) -> object, optional
+        Turns a newer message into what the controller uses (an assumed trajectory, a
+        neighbour's state), once, stored as :attr:`Received.value`. A message it cannot
+        decode (KeyError, TypeError or ValueError) is ignored like one ``accept`` refuses.
     """
 
     def __init__(
@@ -99,10 +105,12 @@ class LatestMessages:
         kinds: Iterable[str] | None = None,
         senders: Iterable[str] | None = None,
         accept: Callable[[PeerMessage], bool] | None = None,
+        decode: Callable[[PeerMessage], Any] | None = None,
     ) -> None:
         self._kinds = None if kinds is None else frozenset(kinds)
         self._senders = None if senders is None else frozenset(senders)
         self._accept = accept
+        self._decode = decode
         self._kept: dict[tuple[str, str], Received] = {}
 
     def update(self, inbox: Iterable[PeerMessage], t: float, lost: Iterable[str] = ()) -> list[Received]:
@@ -125,7 +133,13 @@ class LatestMessages:
                 continue  # late, reordered or duplicated: keep the newest
             if self._accept is not None and not self._accept(m):
                 continue
-            got = Received(m, float(t))
+            value = None
+            if self._decode is not None:
+                try:
+                    value = self._decode(m)
+                except (KeyError, TypeError, ValueError):
+                    continue
+            got = Received(m, float(t), value)
             self._kept[key] = got
             new.append(got)
         return new

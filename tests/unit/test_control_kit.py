@@ -46,6 +46,22 @@ def test_inbox_filters_kinds_senders_and_unusable_payloads():
     assert box.get("a", "k").stamp == 1.0
 
 
+def test_inbox_decodes_each_newer_message_once_and_keeps_the_last_decodable():
+    calls = []
+
+    def decode(m):
+        calls.append(m.stamp)
+        return 2 * m.payload["v"]  # a KeyError when v is missing: the message is unusable
+
+    box = LatestMessages(decode=decode)
+    box.update([_msg("a", 1.0, v=1), _msg("a", 0.5, v=7)], t=1.0)  # the older copy is never decoded
+    assert box.get("a", "k").value == 2 and calls == [1.0]
+    box.update([_msg("a", 2.0)], t=2.0)  # newer but undecodable: the old value stays
+    assert box.get("a", "k").value == 2 and box.get("a", "k").stamp == 1.0
+    box.update([_msg("a", 3.0, v=5)], t=3.0)
+    assert box.get("a", "k").value == 10 and calls == [1.0, 2.0, 3.0]
+
+
 def test_inbox_ages_and_freshness():
     box = LatestMessages()
     box.update([_msg("a", 1.0, age=0.25), _msg("b", 3.0, age=0.05)], t=3.0)

@@ -15,11 +15,11 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any, Mapping
+from typing import Any, Iterable, Mapping
 
 from .config import require
 
-__all__ = ["TARGETS", "Target", "TargetResult", "parse_targets", "grade"]
+__all__ = ["TARGETS", "Target", "TargetResult", "parse_targets", "grade", "meets", "worst", "figure"]
 
 AT_MOST, AT_LEAST = "<=", ">="
 
@@ -89,11 +89,27 @@ def parse_targets(table: Any) -> tuple[Target, ...]:
     return tuple(out)
 
 
-def _worst(metrics: Mapping[str, Any], key: str, sense: str) -> tuple[float | None, str | None]:
+def meets(key: str, value: float | None, threshold: float) -> bool:
+    """Whether ``value`` of metric ``key`` meets ``threshold`` (at most / at least, by the
+    key's sense); an unmeasured (None) value does not."""
+    return value is not None and (value <= threshold if TARGETS[key][1] == AT_MOST else value >= threshold)
+
+
+def worst(key: str, values: Iterable[float]) -> float:
+    """The worst of some values of metric ``key`` (the largest of an at-most figure)."""
+    return (max if TARGETS[key][1] == AT_MOST else min)(values)
+
+
+def figure(metrics: Mapping[str, Any], key: str) -> tuple[float | None, str | None]:
+    """A metrics.json figure: (value, None) for a fleet key, (worst robot's value, that
+    robot) for a per-robot key; (None, None) when unmeasured."""
+    if TARGETS[key][0] == "fleet":
+        v = (metrics.get("fleet") or {}).get(key)
+        return (None if v is None else float(v)), None
     vals = [(v[key], name) for name, v in (metrics.get("robots") or {}).items() if v.get(key) is not None]
     if not vals:
         return None, None
-    value, name = (max if sense == AT_MOST else min)(vals, key=lambda p: p[0])
+    value, name = (max if TARGETS[key][1] == AT_MOST else min)(vals, key=lambda p: p[0])
     return float(value), name
 
 
@@ -101,11 +117,6 @@ def grade(targets: tuple[Target, ...], metrics: Mapping[str, Any]) -> list[Targe
     """Each target against a metrics.json dict; an unmeasured (null) metric fails."""
     out = []
     for t in targets:
-        if t.scope == "robots":
-            value, who = _worst(metrics, t.key, t.sense)
-        else:
-            v = (metrics.get("fleet") or {}).get(t.key)
-            value, who = (None if v is None else float(v)), None
-        passed = value is not None and (value <= t.threshold if t.sense == AT_MOST else value >= t.threshold)
-        out.append(TargetResult(t, value, who, passed))
+        value, who = figure(metrics, t.key)
+        out.append(TargetResult(t, value, who, meets(t.key, value, t.threshold)))
     return out

@@ -31,7 +31,7 @@ import numpy as np
 
 from copath.config import ConfigError
 from copath.scenario import Scenario, parse_scenario
-from copath.targets import AT_MOST, TARGETS, TargetResult, grade
+from copath.targets import TargetResult, figure, grade
 
 __all__ = [
     "Bundled",
@@ -246,16 +246,7 @@ figures are the worst robot's."""
 
 def headline(metrics: Mapping[str, Any], keys: Iterable[str] = HEADLINE) -> dict[str, float | None]:
     """The headline figures of a metrics.json dict (worst robot for per-robot keys)."""
-    out: dict[str, float | None] = {}
-    for k in keys:
-        scope, sense = TARGETS[k]
-        if scope == "fleet":
-            v = (metrics.get("fleet") or {}).get(k)
-        else:
-            vals = [m[k] for m in (metrics.get("robots") or {}).values() if m.get(k) is not None]
-            v = (max if sense == AT_MOST else min)(vals) if vals else None
-        out[k] = None if v is None else float(v)
-    return out
+    return {k: figure(metrics, k)[0] for k in keys}
 
 
 # --- runs ---

@@ -27,7 +27,7 @@ from dataclasses import dataclass
 from typing import Callable, Sequence
 
 from copath.config import ConfigError
-from copath.targets import AT_MOST, TARGETS
+from copath.targets import AT_MOST, TARGETS, meets, worst
 
 from . import sweep
 
@@ -107,25 +107,18 @@ class Cell:
         return self.targets_total > 0 and self.targets_met == self.targets_total and not self.failed
 
 
-def _meets(value: float | None, threshold: float, key: str) -> bool:
-    if value is None:
-        return False
-    return value <= threshold if TARGETS[key][1] == AT_MOST else value >= threshold
-
-
 def cells_of(rows: Sequence[sweep.SweepRow], metric: str, target: float | None) -> list[Cell]:
     """Group the runs by (delay, loss): mean and worst of ``metric`` over the seeds."""
     groups: dict[tuple[float, float], list[sweep.SweepRow]] = {}
     for r in rows:
         groups.setdefault((float(r.setting[DELAY]), float(r.setting[LOSS])), []).append(r)
     out = []
-    worst_of = max if TARGETS[metric][1] == AT_MOST else min
     for (d, p), rs in groups.items():
         vals = [r.figures.get(metric) for r in rs]
         known = [v for v in vals if v is not None]
-        met = None if target is None else all(_meets(v, target, metric) for v in vals)
+        met = None if target is None else all(meets(metric, v, target) for v in vals)
         out.append(Cell(d, p, len(rs), sum(not r.ok for r in rs), sum(known) / len(known) if known else None,
-                        worst_of(known) if known else None, target, met,
+                        worst(metric, known) if known else None, target, met,
                         sum(r.targets_met for r in rs), sum(r.targets_total for r in rs)))
     return out
 

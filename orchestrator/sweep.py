@@ -28,7 +28,7 @@ from dataclasses import dataclass
 from typing import Any, Callable, Sequence
 
 from copath.config import ConfigError
-from copath.targets import AT_MOST, TARGETS
+from copath import targets
 
 from . import api
 
@@ -182,10 +182,6 @@ def write_csv(rows: list[SweepRow], path: pathlib.Path) -> None:
                         r.targets_met, r.targets_total, f"{r.wall_s:.2f}"])
 
 
-def _worst(values: list[float], key: str) -> float:
-    return max(values) if TARGETS[key][1] == AT_MOST else min(values)
-
-
 def summarise(rows: list[SweepRow]) -> tuple[list[str], list[str], list[dict[str, Any]]]:
     """Group the rows by setting (all swept keys but the seed): mean and worst per figure.
 
@@ -203,7 +199,7 @@ def summarise(rows: list[SweepRow]) -> tuple[list[str], list[str], list[dict[str
         for k in fkeys:
             vals = [r.figures[k] for r in rs if r.figures.get(k) is not None]
             mean[k] = sum(vals) / len(vals) if vals else None
-            worst[k] = _worst(vals, k) if vals else None
+            worst[k] = targets.worst(k, vals) if vals else None
         out.append({"setting": dict(zip(skeys, g)), "runs": len(rs), "failed": sum(not r.ok for r in rs),
                     "targets_met": sum(r.targets_met for r in rs), "targets_total": sum(r.targets_total for r in rs),
                     "mean": mean, "worst": worst})

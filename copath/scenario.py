@@ -328,9 +328,8 @@ class _Errors:
         return default
 
     def check(self, cond: bool, key: str, value: Any, allowed: str) -> bool:
-        if not cond:
-            self.items.append(f"{key} = {value!r} is not allowed; {allowed}")
-        return bool(cond)
+        """:func:`copath.config.require`, recorded instead of raised; returns ``cond``."""
+        return self.take(lambda: require(cond, key, value, allowed) or True, False)
 
 
 def _sub_error(prefix: str, exc: Exception) -> ConfigError:

@@ -38,7 +38,7 @@ from .figures import json_number as _f
 from .metrics_estimation import ESTIMATION_KEYS, estimation_metrics
 from .metrics_truth import cross_track_series, team_geometry, truth_metrics, truth_series
 
-__all__ = ["RobotTrace", "Trace", "trace_from_records", "compute_metrics", "metrics_from_log", "log_metrics", "METRIC_KEYS"]
+__all__ = ["RobotTrace", "Trace", "trace_from_records", "compute_metrics", "metrics_from_log", "log_metrics", "reported_coordination_series", "METRIC_KEYS"]
 
 ROBOT_KEYS = (
     "path_error_max_m",
@@ -272,7 +272,11 @@ def _safety_metrics(telemetry: list[dict]) -> dict[str, Any]:
             "safety_ms_p50": _f(np.percentile(ms, 50)), "safety_ms_p99": _f(np.percentile(ms, 99))}
 
 
-def _coordination_reported(trace: Trace, scenario: Scenario, settle: float):
+def reported_coordination_series(trace: Trace, scenario: Scenario, settle: float = 0.0):
+    """(ticks, error) of the coordination the controllers report: max over the scored
+    pairs (``[metrics] coordination_pairs``) of |xi_i - xi_j| (modulo ``xi_period``), each
+    robot's telemetry ``xi`` interpolated onto the simulator's ticks after ``settle``;
+    None when fewer than two robots report xi. The metrics and the plots both use it."""
     xs = {}
     period = 0.0
     for n, rt in trace.robots.items():
@@ -281,27 +285,35 @@ def _coordination_reported(trace: Trace, scenario: Scenario, settle: float):
             xs[n] = np.array(pts, dtype=float)
             period = max(period, max(float(d.get("xi_period") or 0.0) for d in rt.telemetry if "xi" in d))
     if len(xs) < 2:
-        return None, None
+        return None
     ref = next(iter(trace.robots.values()))
     grid = ref.t[ref.t >= settle - 1e-9]
     lo = max(a[0, 0] for a in xs.values())
     hi = min(a[-1, 0] for a in xs.values())
     grid = grid[(grid >= lo - 1e-9) & (grid <= hi + 1e-9)]
     if len(grid) == 0:
-        return None, None
+        return None
     vals = {n: np.interp(grid, a[:, 0], a[:, 1]) for n, a in xs.items()}
     if scenario.metrics["coordination_pairs"] == "edges":
         pairs = [(a, b) for a, b in scenario.edges() if a in vals and b in vals]
     else:
         pairs = list(itertools.combinations(sorted(vals), 2))
     if not pairs:
-        return None, None
+        return None
     err = np.zeros(len(grid))
     for a, b in pairs:
         d = vals[a] - vals[b]
         if period > 0:
             d = d - period * np.round(d / period)
         err = np.maximum(err, np.abs(d))
+    return grid, err
+
+
+def _coordination_reported(trace: Trace, scenario: Scenario, settle: float):
+    series = reported_coordination_series(trace, scenario, settle)
+    if series is None:
+        return None, None
+    err = series[1]
     return _f(err.max()), _f(np.sqrt(np.mean(err**2)))
 
 

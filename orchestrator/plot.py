@@ -57,7 +57,7 @@ from copath.wire.keys import Keys  # noqa: E402
 from copath.wire.messages import Command, PeerEnvelope, Truth  # noqa: E402
 
 from .mcaplog import read_log  # noqa: E402
-from .metrics import Trace, trace_from_records  # noqa: E402
+from .metrics import Trace, reported_coordination_series, trace_from_records  # noqa: E402
 from .viz import FaultReplay, communication_links, foxglove_layout  # noqa: E402
 from .metrics_estimation import estimate_series  # noqa: E402
 
@@ -141,23 +141,8 @@ def _telemetry_series(rt, name: str) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _reported_coordination(view: RunView) -> tuple[np.ndarray, np.ndarray] | None:
-    """max |xi_i - xi_j| over all pairs from the controllers' telemetry (what they report)."""
-    xs, period = {}, 0.0
-    for n, rt in view.trace.robots.items():
-        t, xi = _telemetry_series(rt, "xi")
-        if len(t):
-            xs[n] = (t, xi)
-            period = max([period] + [float(d.get("xi_period") or 0.0) for d in rt.telemetry])
-    if len(xs) < 2:
-        return None
-    lo, hi = max(v[0][0] for v in xs.values()), min(v[0][-1] for v in xs.values())
-    grid = next(iter(xs.values()))[0]
-    grid = grid[(grid >= lo) & (grid <= hi)]
-    vals = np.array([np.interp(grid, t, x) for t, x in xs.values()])
-    d = vals[:, None, :] - vals[None, :, :]
-    if period > 0:
-        d = d - period * np.round(d / period)
-    return grid, np.abs(d).max(axis=(0, 1))
+    """The coordination the controllers report, over the same pairs as metrics.json."""
+    return reported_coordination_series(view.trace, view.scenario)
 
 
 def _truth_series(view: RunView):

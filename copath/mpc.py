@@ -134,9 +134,13 @@ def qp_options(qp_solver: str, **extra) -> dict:
 def jit_options(flags: Sequence[str] = ("-O2",)) -> dict:
     """CasADi options that JIT-compile a Function with the system C compiler (``shell``);
     a saved Function carries its binary (the solver cache, ``copath.solver_cache``)."""
-    from .solver_cache import EMBED  # noqa: PLC0415
+    from .solver_cache import EMBED, jit_directory  # noqa: PLC0415
 
-    return {"jit": True, "compiler": "shell", "jit_options": {"flags": list(flags), "verbose": False}, **EMBED}
+    # an empty list would reach CasADi typed as a vector of booleans and be refused
+    extra = {"flags": [str(f) for f in flags]} if flags else {}
+    where = jit_directory()  # the generated C source and the library, not the working directory
+    return {"jit": True, "compiler": "shell", **EMBED,
+            "jit_options": {**extra, "verbose": False, "directory": where}}
 
 # statuses whose iterate is used when it is feasible (a warm-started SQP that stops on
 # its iteration limit still returns a usable, constraint-satisfying plan)
@@ -152,8 +156,9 @@ def jit_available() -> bool:
             from . import solver_cache  # noqa: PLC0415
 
             x = ca.SX.sym("x")
-            f = solver_cache.cached_function("jit_probe", solver_cache.solver_key("jit_probe"), lambda: ca.Function(
-                "jit_probe", [x], [x * x], jit_options(())))
+            opts = jit_options(())
+            f = solver_cache.cached_function("jit_probe", solver_cache.solver_key("jit_probe", opts), lambda: ca.Function(
+                "jit_probe", [x], [x * x], opts))
             _JIT_OK = abs(float(f(3.0)) - 9.0) < 1e-12
         except Exception as exc:  # no compiler, no write access, ...
             logger.info("CasADi JIT unavailable, using the virtual machine: %s", exc)
@@ -484,6 +489,14 @@ class MPCSolver:
         opts: dict = {"print_time": False, "error_on_fail": False, "calc_lam_p": False}
         if use_jit:
             opts.update(self._jit_opts())
+            from .solver_cache import no_jit_sources_left  # noqa: PLC0415
+
+            with no_jit_sources_left():
+                return self._make_nlpsol(nlp, opts, use_jit)
+        return self._make_nlpsol(nlp, opts, use_jit)
+
+    def _make_nlpsol(self, nlp: dict, opts: dict, use_jit: bool) -> ca.Function:
+        c = self.config
         if c.method == "ipopt":
             opts["ipopt"] = {"print_level": 0, "max_iter": c.max_iter, "tol": c.tol,
                              "sb": "yes", "warm_start_init_point": "yes",

@@ -16,17 +16,19 @@ fails to load is rebuilt and replaced.
 
 from __future__ import annotations
 
+import contextlib
+import glob
 import hashlib
 import logging
 import os
 import pathlib
 import platform
 import tempfile
-from typing import Any, Callable
+from typing import Any, Callable, Iterator
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["cache_dir", "cached_function", "solver_key", "EMBED", "stats"]
+__all__ = ["cache_dir", "cached_function", "jit_directory", "no_jit_sources_left", "solver_key", "EMBED", "stats"]
 
 EMBED = {"jit_serialize": "embed"}
 """Options that make a JIT-compiled Function carry its binary when saved."""
@@ -44,6 +46,32 @@ def cache_dir() -> pathlib.Path | None:
         return pathlib.Path(env).expanduser()
     base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
     return pathlib.Path(base) / "copath" / "solvers"
+
+
+def jit_directory() -> str:
+    """Where CasADi's shell compiler puts its temporary C files and libraries (with a
+    trailing separator, as CasADi wants): a per-user folder of the system's temporary
+    directory. Without it they land in the working directory, and a process killed before
+    CasADi unloads them (a run's Ctrl-C, a test's timeout) leaves them there."""
+    path = os.path.join(tempfile.gettempdir(), f"copath-jit-{os.getuid()}")
+    os.makedirs(path, mode=0o700, exist_ok=True)
+    return path + os.sep
+
+
+@contextlib.contextmanager
+def no_jit_sources_left() -> Iterator[None]:
+    """Remove the ``jit_tmp*.c`` files a build leaves in the working directory.
+
+    CasADi 3.8's ``nlpsol`` writes the C source of its JIT build there, whatever the
+    compiler's ``directory`` option says, and does not remove it (measured: the file
+    survives the solver's deletion); only files that appear during the build are removed."""
+    before = set(glob.glob("jit_tmp*.c"))
+    try:
+        yield
+    finally:
+        for name in set(glob.glob("jit_tmp*.c")) - before:
+            with contextlib.suppress(OSError):
+                os.remove(name)
 
 
 def solver_key(*parts: Any) -> str:

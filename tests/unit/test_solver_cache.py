@@ -3,6 +3,8 @@ keyed by the problem's structure and numbers and the solver options."""
 
 from __future__ import annotations
 
+import shutil
+
 import casadi as ca
 import numpy as np
 import pytest
@@ -54,3 +56,20 @@ def test_the_cache_can_be_switched_off(monkeypatch):
     assert solver_cache.cache_dir() is None
     built = []
     assert solver_cache.cached_function("x", "k", lambda: built.append(1) or "fn") == "fn" and built == [1]
+
+
+@pytest.mark.skipif(shutil.which("gcc") is None, reason="no C compiler on this machine")
+def test_the_jit_probe_works_on_an_empty_cache_and_leaves_nothing_in_the_working_directory(
+        tmp_path, monkeypatch):
+    # a fresh machine: no probe cached yet (its options used to fail CasADi's type check,
+    # and a probe cached by an older build hid that), started from a folder of the user's
+    import copath.mpc as mpc
+
+    monkeypatch.setenv("COPATH_SOLVER_CACHE", str(tmp_path / "cache"))
+    monkeypatch.setattr(mpc, "_JIT_OK", None)
+    work = tmp_path / "work"
+    work.mkdir()
+    monkeypatch.chdir(work)
+    assert mpc.jit_available()
+    MPCSolver(_ocp(name="cwd_test"), SolverConfig(jit=True)).solve([1.0, 0.0])
+    assert list(work.iterdir()) == []

@@ -276,6 +276,10 @@ def run_fleet(scenario: Scenario, opts: RunOptions) -> RunOutcome:
                 end = recorder.end
                 if rc_sim != 0 or end is None or not end.ok:
                     why = end.reason if end is not None else f"the simulator {_describe_exit(rc_sim)}"
+                    silent = [n for n in scenario.robot_names if n in token_at and n not in ready and n not in gone]
+                    if silent and end is not None:  # every robot whose token is gone, not only the first
+                        why += (f"; no liveliness token from {', '.join(silent)} (a process stopped, or its "
+                                "host or router lost the link to this run's router)")
                     ok, reason = False, f"{why} at sim t={recorder.sim_t:.2f} s; see {out / 'logs' / 'sim.log'}"
                     break
                 # normal end: wait for the robots to send their closing accounts and exit
@@ -288,6 +292,7 @@ def run_fleet(scenario: Scenario, opts: RunOptions) -> RunOutcome:
                 stuck = [c.name for c in children if c.proc.poll() is None]
                 if policy != "fail":  # frozen robots the run went on without
                     gone.update(n for n in stuck if n in scenario.robot_names and n not in ready)
+                    gone.update(n for n in opts.external if n not in ready)  # cut off, or stopped by hand
                     stuck = [n for n in stuck if n not in gone]
                 bad = [c for c in children[1:] if c.proc.poll() is not None and c.proc.returncode != 0]
                 if stuck:

@@ -1,0 +1,168 @@
+"""Two "hosts" on one machine: Linux network namespaces joined by a veth pair, each with
+its own Zenoh router (docs/faults.md, "Across hosts"). Shared by the netns and router
+tests and by ``benchmarks/fault_table.py``.
+
+Host A is 10.77.0.1, host B 10.77.0.2 on their own /24. Setting them up needs root and
+``ip netns``; an impairment of the link needs ``tc`` (rate limit) or ``iptables`` (random
+drop with the ``statistic`` match). :func:`why_not` names what is missing."""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import shutil
+import subprocess
+import sys
+import time
+import uuid
+from dataclasses import dataclass
+from typing import Callable, Iterator
+
+from tests.conftest import REPO
+
+ADDR_A, ADDR_B = "10.77.0.1", "10.77.0.2"
+PORT = 7447
+
+
+def endpoint(addr: str, port: int = PORT) -> str:
+    return f"tcp/{addr}:{port}"
+
+
+def _run(argv: list[str]) -> subprocess.CompletedProcess:
+    return subprocess.run(argv, capture_output=True, text=True, timeout=20)
+
+
+def why_not(*, iptables: bool = False, tc: bool = False) -> str | None:
+    """Why two hosts cannot be set up here (None: they can)."""
+    if os.geteuid() != 0:
+        return "network namespaces need root"
+    if shutil.which("ip") is None:
+        return "the ip command (iproute2) is not installed"
+    if iptables and shutil.which("iptables") is None:
+        return "iptables is not installed (random packet drop needs its statistic match)"
+    if tc and shutil.which("tc") is None:
+        return "tc (iproute2) is not installed"
+    probe = f"cpprobe{os.getpid()}"
+    res = _run(["ip", "netns", "add", probe])
+    if res.returncode != 0:
+        return f"ip netns add is not permitted here: {res.stderr.strip()}"
+    try:
+        if iptables:
+            res = _run(["ip", "netns", "exec", probe, "iptables", "-A", "INPUT", "-m", "statistic", "--mode", "random",
+                        "--probability", "0.1", "-j", "DROP"])
+            if res.returncode != 0:
+                return f"iptables with the statistic match does not work in a namespace: {res.stderr.strip()}"
+    finally:
+        _run(["ip", "netns", "del", probe])
+    return None
+
+
+@dataclass(frozen=True)
+class Hosts:
+    a: str
+    """Namespace of host A."""
+    b: str
+    """Namespace of host B."""
+    dev_a: str
+    dev_b: str
+
+    def argv(self, host: str, argv: list[str]) -> list[str]:
+        """``argv`` run inside ``host``'s namespace (``ip netns exec`` execs it: same pid)."""
+        return ["ip", "netns", "exec", host, *argv]
+
+    def drop(self, host: str, probability: float) -> None:
+        """Drop this share of the packets arriving at ``host`` over the link (iptables,
+        statistic random match; the loopback traffic inside the host is untouched)."""
+        dev = self.dev_a if host == self.a else self.dev_b
+        res = _run(self.argv(host, ["iptables", "-A", "INPUT", "-i", dev, "-m", "statistic", "--mode", "random",
+                                    "--probability", str(probability), "-j", "DROP"]))
+        if res.returncode != 0:
+            raise RuntimeError(f"iptables drop on {host}: {res.stderr.strip()}")
+
+    def dropped(self, host: str) -> int:
+        """Packets the drop rule on ``host`` has dropped so far."""
+        res = _run(self.argv(host, ["iptables", "-L", "INPUT", "-v", "-n", "-x"]))
+        return sum(int(line.split()[0]) for line in res.stdout.splitlines()[2:] if "DROP" in line)
+
+    def throttle(self, host: str, rate: str = "4mbit") -> None:
+        """A token-bucket rate limit (``tc tbf``) on ``host``'s side of the link."""
+        dev = self.dev_a if host == self.a else self.dev_b
+        res = _run(self.argv(host, ["tc", "qdisc", "add", "dev", dev, "root", "tbf", "rate", rate,
+                                    "burst", "32kbit", "latency", "50ms"]))
+        if res.returncode != 0:
+            raise RuntimeError(f"tc tbf on {host}: {res.stderr.strip()}")
+
+
+@contextlib.contextmanager
+def two_hosts(on_setup_error: Callable[[str], None] | None = None) -> Iterator[Hosts]:
+    """Set up hosts A and B, torn down on exit. A step that fails calls
+    ``on_setup_error(message)`` (e.g. ``pytest.skip``), else raises RuntimeError."""
+    tag = uuid.uuid4().hex[:6]
+    h = Hosts(f"cpA{tag}", f"cpB{tag}", f"va{tag}", f"vb{tag}")
+    try:
+        for cmd in (["netns", "add", h.a], ["netns", "add", h.b],
+                    ["link", "add", h.dev_a, "type", "veth", "peer", "name", h.dev_b],
+                    ["link", "set", h.dev_a, "netns", h.a], ["link", "set", h.dev_b, "netns", h.b],
+                    ["-n", h.a, "addr", "add", f"{ADDR_A}/24", "dev", h.dev_a],
+                    ["-n", h.b, "addr", "add", f"{ADDR_B}/24", "dev", h.dev_b],
+                    ["-n", h.a, "link", "set", h.dev_a, "up"], ["-n", h.b, "link", "set", h.dev_b, "up"],
+                    ["-n", h.a, "link", "set", "lo", "up"], ["-n", h.b, "link", "set", "lo", "up"]):
+            res = _run(["ip", *cmd])
+            if res.returncode != 0:
+                msg = f"ip {' '.join(cmd)} failed: {res.stderr.strip()}"
+                if on_setup_error is not None:
+                    on_setup_error(msg)
+                raise RuntimeError(msg)
+        yield h
+    finally:
+        _run(["ip", "netns", "del", h.a])  # deletes the veth pair with it
+        _run(["ip", "netns", "del", h.b])
+
+
+ROUTER = """
+import signal, sys, time
+from copath.wire.session import SessionConfig, ZenohLink
+listen, lease_ms, connect = sys.argv[1], int(sys.argv[2]), tuple(sys.argv[3:])
+link = ZenohLink.open(SessionConfig(mode="router", listen=(listen,), connect=connect, lease_ms=lease_ms))
+print("router up", flush=True)
+signal.signal(signal.SIGTERM, lambda *a: sys.exit(0))
+try:
+    while True:
+        time.sleep(0.2)
+finally:
+    link.close()
+"""
+"""A host's own Zenoh router: ``python -c ROUTER LISTEN LEASE_MS [CONNECT...]``."""
+
+
+def child_env() -> dict[str, str]:
+    env = dict(os.environ)
+    env["PYTHONPATH"] = str(REPO) + os.pathsep + env.get("PYTHONPATH", "")
+    return env
+
+
+def popen(hosts: Hosts, host: str, argv: list[str]) -> subprocess.Popen:
+    """A Python program in ``host``'s namespace, in its own process group (kill by pid)."""
+    return subprocess.Popen(hosts.argv(host, [sys.executable, *argv]), cwd=str(REPO), env=child_env(),
+                            start_new_session=True, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+
+
+def start_router(hosts: Hosts, host: str, listen: str, *connect: str, lease_ms: int = 1000,
+                 timeout_s: float = 60.0) -> subprocess.Popen:
+    """Start ``host``'s router (announcing a transport lease of ``lease_ms``) and wait until it is up."""
+    p = popen(hosts, host, ["-c", ROUTER, listen, str(lease_ms), *connect])
+    deadline = time.monotonic() + timeout_s
+    line = p.stdout.readline().decode().strip()  # blocks until the router prints or exits
+    if line != "router up" or time.monotonic() > deadline:
+        p.kill()
+        raise RuntimeError(f"the router on {host} did not start: {p.stderr.read().decode()[-1000:]}")
+    return p
+
+
+def wait_for_file(path, proc: subprocess.Popen, timeout_s: float = 120.0) -> None:
+    """Wait for ``path`` to exist while ``proc`` runs."""
+    deadline = time.monotonic() + timeout_s
+    while not path.is_file():
+        if proc.poll() is not None or time.monotonic() > deadline:
+            raise AssertionError(f"{path.name} did not appear: {proc.stderr.read().decode()[-2000:]}")
+        time.sleep(0.05)

@@ -77,6 +77,9 @@ class AgentNode:
         """No observation for this long: command zero velocity and say so (0: off)."""
         self._heard = time.monotonic()
         self._tripped = False
+        self.liveliness_grace_s = runtime.scenario.run.liveliness_grace_s
+        self._sim_gone_at: float | None = None
+        self._cpu_at_start = 0.0
         self._barrier = True
 
     # -- receive: one callback per record type (link threads, or inline) -------------
@@ -115,6 +118,8 @@ class AgentNode:
 
     def _on_sim(self, key: str, rec) -> None:
         if isinstance(rec, Start):
+            cpu = os.times()
+            self._cpu_at_start = cpu.user + cpu.system
             self.wall_t0 = rec.wall_t0
             self.started.set()
         elif isinstance(rec, End):
@@ -126,9 +131,13 @@ class AgentNode:
             self.finish()
 
     def _end_due(self) -> bool:
-        """An End arrived and no observation followed within ``end_grace_s``."""
+        """An End arrived and no observation followed within ``end_grace_s``, or the
+        simulator's token has been gone for ``liveliness_grace_s``."""
         if self._end_at is not None and time.monotonic() - self._end_at > self.end_grace_s:
             self.ended.set()
+        gone = self._sim_gone_at
+        if gone is not None and not self.ended.is_set() and time.monotonic() - gone >= self.liveliness_grace_s:
+            self._sim_went_away()
         return self.ended.is_set()
 
     def _on_robot_alive(self, key: str, alive: bool) -> None:
@@ -156,12 +165,30 @@ class AgentNode:
         self.rt.counters.extra["watchdog_stops"] = self.rt.counters.extra.get("watchdog_stops", 0) + 1
 
     def _on_sim_alive(self, key: str, alive: bool) -> None:
-        if not alive and not self.ended.is_set():
-            logger.error("the simulator went away; stopping")
-            self.ended.set()
-            self.obs_q.put(None)
-            with self._arrived:
-                self._arrived.notify()
+        """The simulator's token went: stop, unless it is back within ``run.liveliness_grace_s``
+        (a transport reset under CPU starvation drops every token this process sees, and the
+        session reconnects; docs/faults.md). ``_end_due`` acts on it."""
+        if alive:
+            if self._sim_gone_at is not None:
+                logger.warning("the simulator's liveliness token is back after %.2f s",
+                               time.monotonic() - self._sim_gone_at)
+            self._sim_gone_at = None
+            return
+        if self.ended.is_set():
+            return
+        self._sim_gone_at = time.monotonic()
+        if self.liveliness_grace_s > 0:
+            logger.warning("the simulator's liveliness token disappeared; waiting %.1f s for it",
+                           self.liveliness_grace_s)
+            return
+        self._sim_went_away()
+
+    def _sim_went_away(self) -> None:
+        logger.error("the simulator went away; stopping")
+        self.ended.set()
+        self.obs_q.put(None)
+        with self._arrived:
+            self._arrived.notify()
 
     def _await_peers(self, obs: Obs) -> None:
         """Lockstep barrier: wait until every message the neighbours sent by the end of
@@ -277,7 +304,7 @@ class AgentNode:
         else:
             _yield_to_simulator()
             while not self.started.wait(timeout=0.5):
-                if self.ended.is_set():
+                if self._end_due():
                     break
             period = self.rt.dt
             next_t = time.time()
@@ -312,6 +339,10 @@ class AgentNode:
         counters = self.rt.closing_counters()
         counters["rejects"] = self.link.rejects + (0 if self._shared_rejects else self.rt.reject_log.total)
         counters["peak_rss_mb"] = _peak_rss_mb()
+        cpu = os.times()
+        counters["cpu_s"] = round(cpu.user + cpu.system, 3)  # the whole process: start-up, Zenoh's threads
+        if self.started.is_set():
+            counters["cpu_run_s"] = round(cpu.user + cpu.system - self._cpu_at_start, 3)  # from the start record
         if self._ages:
             ages = sorted(self._ages)
             for q in (50, 99):

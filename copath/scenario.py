@@ -107,6 +107,11 @@ class RunConfig:
     watchdog_s: float = 5.0
     """An agent that hears nothing from the simulator for this long commands zero
     velocity and logs an event (0: off)."""
+    liveliness_grace_s: float = 2.0
+    """A liveliness token that disappears counts as a lost process only when it has not come
+    back within this time [s]: a transport reset under CPU starvation (the 1 s lease lapses,
+    the client reconnects) is not a loss (docs/faults.md). Under ``continue``/``restart`` the
+    simulator holds the robot still at once and lets it rejoin, as before."""
     """Fleet runs: per-run credentials and access control on the run's router, so only the
     simulator publishes observations and each robot only its own keys (docs/security.md)."""
 
@@ -123,6 +128,7 @@ class RunConfig:
         require(self.on_robot_failure in FAILURE_POLICIES, "run.on_robot_failure", self.on_robot_failure,
                 f"allowed: {', '.join(FAILURE_POLICIES)}")
         require(self.watchdog_s >= 0, "run.watchdog_s", self.watchdog_s, "must be >= 0 (0: off)")
+        require(self.liveliness_grace_s >= 0, "run.liveliness_grace_s", self.liveliness_grace_s, "must be >= 0")
 
 
 @dataclass(frozen=True)

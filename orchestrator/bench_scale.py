@@ -93,6 +93,10 @@ def _measure(n: int, args: argparse.Namespace, root: pathlib.Path) -> dict[str, 
     rss = [s["peak_rss_mb"] for s in agents if s.get("peak_rss_mb") is not None]
     age99 = [s["peer_age_ms_p99"] for s in agents if s.get("peer_age_ms_p99") is not None]
     age50 = [s["peer_age_ms_p50"] for s in agents if s.get("peer_age_ms_p50") is not None]
+    # CPU of the agents from the start record to their end, per control step (Zenoh's threads included)
+    per_step = sorted(1e3 * s["cpu_run_s"] / s["steps"] for s in agents if s.get("cpu_run_s") is not None and s.get("steps"))
+    run_cpu = sum(s["cpu_run_s"] for s in agents if s.get("cpu_run_s") is not None)
+    sim_cpu = (stats.get("sim") or {}).get("cpu_s")
     return {
         "robots": n,
         "ok": outcome.ok,
@@ -106,6 +110,9 @@ def _measure(n: int, args: argparse.Namespace, root: pathlib.Path) -> dict[str, 
         "startup_s": _startup_s(outcome.out_dir, t_call) if (outcome.out_dir / "run.mcap").is_file() else None,
         "peer_age_ms_p50": round(sorted(age50)[len(age50) // 2], 3) if age50 else None,
         "peer_age_ms_p99_max": max(age99) if age99 else None,
+        "agent_cpu_ms_per_step_p50": round(per_step[len(per_step) // 2], 3) if per_step else None,
+        "agents_cpu_cores": round(run_cpu / args.duration, 3) if per_step else None,
+        "sim_cpu_s": sim_cpu,
         "wall_s": round(wall, 2),
     }
 
@@ -121,7 +128,8 @@ def _table(result: dict[str, Any]) -> None:
         ("physics_overruns", "overruns", "d"), ("physics_steps", "of steps", "d"),
         ("coordination_error_max_m", "coord max m", ".4f"), ("peak_rss_mb_max", "agent MB", ".0f"),
         ("startup_s", "startup s", ".1f"), ("peer_age_ms_p50", "age p50 ms", ".2f"),
-        ("peer_age_ms_p99_max", "age p99 ms", ".2f"), ("wall_s", "wall s", ".1f")])
+        ("peer_age_ms_p99_max", "age p99 ms", ".2f"), ("agent_cpu_ms_per_step_p50", "agent CPU ms/step", ".2f"),
+        ("agents_cpu_cores", "agents' cores", ".2f"), ("sim_cpu_s", "sim CPU s", ".1f"), ("wall_s", "wall s", ".1f")])
     for r in result["runs"]:
         if not r["ok"]:
             print(f"{r['robots']} robots: run failed: {r['reason']}")

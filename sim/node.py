@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
 import queue
 import sys
 import threading
@@ -82,6 +83,8 @@ class SimNode:
         self.cmds: queue.Queue = queue.Queue()
         self.alive: set[str] = set()
         self.lost: list[str] = []
+        self._gone_at: dict[str, float] = {}
+        """``fail``: robots whose token disappeared, when (monotonic); lost after the grace period."""
         self.policy = scenario.run.on_robot_failure
         self.down: set[str] = set()
         """Robots gone under ``continue`` or ``restart``: held still, not waited for."""
@@ -118,14 +121,18 @@ class SimNode:
         with self._alive_cv:
             if alive:
                 self.alive.add(name)
+                if self._gone_at.pop(name, None) is not None:
+                    logger.warning("robot %s's liveliness token is back", name)
                 if self._started_run and self.policy != "fail":
                     self._transitions.put((name, True))
             elif name in self.alive:
                 self.alive.discard(name)
-                if self.policy == "fail" or not self._started_run:
-                    self.lost.append(name)
-                else:
+                logger.warning("robot %s's liveliness token disappeared", name)
+                if self._started_run and self.policy != "fail":
                     self._transitions.put((name, False))
+                elif self._started_run:  # "fail": lost unless it is back within the grace period
+                    self._gone_at[name] = time.monotonic()
+                # before the start a robot whose token went is simply waited for again
             self._alive_cv.notify_all()
 
     def _apply_transitions(self) -> None:
@@ -196,10 +203,18 @@ class SimNode:
         else:
             k, ok, reason = self._realtime()
         self._finish(k, reason, ok)
+        if not ok:
+            logger.error("run ended at tick %d: %s", k, reason)
         return ok
 
     def _lost_reason(self) -> str | None:
+        """A robot whose token has been gone for ``run.liveliness_grace_s`` is lost."""
         with self._alive_cv:
+            now = time.monotonic()
+            for name, t in list(self._gone_at.items()):
+                if now - t >= self.scenario.run.liveliness_grace_s:
+                    del self._gone_at[name]
+                    self.lost.append(name)
             if self.lost:
                 return f"robot {self.lost[0]} lost (its process stopped)"
         return None
@@ -291,6 +306,8 @@ class SimNode:
         self._reject_event(closing=True)
         self.link.publish(self.keys.end, End(k, float(self.world.t), reason, ok))
         counters = {"missed_ticks": self.missed, "stale_commands": self.stale, "physics_overruns": self.overruns, "rejects": self.link.rejects}
+        cpu = os.times()
+        counters["cpu_s"] = round(cpu.user + cpu.system, 3)  # this process (in-process runs: the whole run)
         self.link.publish(self.keys.stats("sim"), Stats("sim", self.link.published, counters))
 
 

@@ -16,10 +16,22 @@ distance (the text leaves the collision-free timing to the designer).
 Beyond the dissertation (docs/controllers-notes.md, N4): formation feedback. Followers report
 their tracking error (``follower_status``) and the leader lowers its reference speed
 while a follower lags; ``formation_feedback = false`` reproduces the original scheme.
+
+Beyond the dissertation (docs/faults.md, "A new leader"): with ``run.on_robot_failure``
+``continue`` or ``restart``, a team whose leader is lost (``Observation.lost``) goes on under
+a new one. Every member applies the same succession rule to what it already knows, so the
+team agrees without exchanging a vote: the new leader is the first robot of the team, in the
+scenario's robot order, that is not lost. It keeps its own slot and keeps the team's
+reference point C moving from the leader progress it last knew (:class:`KeeperOfC`), so
+every member keeps its offsets (p, q) from C and no reference jumps; C itself is left empty,
+since the lost leader stops there. Each election raises a term carried in the plans, so a
+returning leader, which starts at term 0, follows the leader of the higher term (tracking C)
+instead of taking the lead back.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 from dataclasses import dataclass
@@ -27,11 +39,12 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from copath.config import ConfigError, require
+from copath.config import ConfigError, from_table, require
 from copath.offsets import Quintic, offset_state
 from copath.paths import Path, PathTable, wrap_to_pi
 
-from copath.control import controller, LatestMessages, Observation, Outgoing, PeerMessage, RobotContext, StepResult
+from copath.control import (controller, LatestMessages, Observation, Outgoing, PeerMessage, RobotContext, StepResult,
+                            VirtualVehicle)
 from .omni_nmpc import OmniNMPCFields, OmniPathFollower, OmniPFConfig, OmniTrackingNMPC, check_gain_conditions
 
 __all__ = [
@@ -40,6 +53,7 @@ __all__ = [
     "FollowerConfig",
     "LeaderController",
     "FollowerController",
+    "LeaderFollowing",
     "build_leader",
     "build_follower",
     "LeaderPlan",
@@ -177,8 +191,11 @@ class FormationSchedule:
         return out, prev
 
     def offsets(self, robot: str, s_c) -> tuple[np.ndarray, ...]:
-        """(p, p', p'', q, q', q'') of ``robot`` at leader coordinate(s) s_c; ' = d/ds_c."""
+        """(p, p', p'', q, q', q'') of ``robot`` at leader coordinate(s) s_c; ' = d/ds_c.
+        A robot the formations do not place (the leader) is at C: all zero."""
         s_c = np.asarray(s_c, dtype=float)
+        if robot not in self.formations[self.initial]:
+            return tuple(np.zeros(s_c.shape) for _ in range(6))
         p0, q0 = self.formations[self.initial][robot]
         p = np.full(s_c.shape, p0)
         q = np.full(s_c.shape, q0)
@@ -390,23 +407,19 @@ class PathLeader(OmniPathFollower):
         }
 
 
-class LeaderController:
-    """The Sec. 5.3 leader: NMPC path following and the ``leader_plan`` broadcast."""
+class FormationFeedback:
+    """Formation feedback (beyond the text, docs/controllers-notes.md, N4): the fraction of
+    u_R the team's reference point moves at, from the largest fresh follower error. Kept by
+    the Sec. 5.3 leader and by a new leader that keeps C (docs/faults.md)."""
 
-    def __init__(self, ctx: RobotContext, cfg: LeaderConfig) -> None:
-        where = f"robots.{ctx.name}.controller"
-        self.cfg, self.ctx = cfg, ctx
-        self.followers = cfg.formation_schedule(where).followers
-        for f in self.followers:
-            require(f in ctx.neighbours, f"robots.{ctx.name}.neighbours", list(ctx.neighbours),
-                    f"the leader broadcasts to its neighbours; add follower {f!r}")
-        self.leader = PathLeader(ctx, cfg, "leader_nmpc")
+    def __init__(self, cfg: LeaderConfig, followers: Sequence[str]) -> None:
+        self.cfg = cfg
         self.factor = 1.0
-        self.inbox = LatestMessages(kinds=(STATUS_KIND,), senders=self.followers)
+        self.inbox = LatestMessages(kinds=(STATUS_KIND,), senders=followers)
 
-    def _slowdown(self, t: float, dt: float) -> float:
-        """Formation feedback: fraction of u_R from the largest fresh follower error."""
+    def __call__(self, inbox: Sequence[PeerMessage], t: float, dt: float) -> float:
         cfg = self.cfg
+        self.inbox.update(inbox, t)
         if not cfg.formation_feedback:
             return 1.0
         errs = [float(got.payload["tracking_error"])
@@ -418,23 +431,64 @@ class LeaderController:
         self.factor += min(max(target - self.factor, -step), step)
         return self.factor
 
+
+def _plan(s_l: float, sdot_pred, delta_l: float, factor: float, u_R: float) -> dict[str, Any]:
+    """The ``leader_plan`` payload (Sec. 5.3.3) with the slowdown and the nominal u_R."""
+    return {"s_l": float(s_l), "sdot_pred": [float(v) for v in sdot_pred], "delta_l": float(delta_l),
+            "slowdown": float(factor), "u_R": float(u_R)}
+
+
+class LeaderController:
+    """The Sec. 5.3 leader: NMPC path following and the ``leader_plan`` broadcast."""
+
+    def __init__(self, ctx: RobotContext, cfg: LeaderConfig) -> None:
+        where = f"robots.{ctx.name}.controller"
+        self.cfg, self.ctx = cfg, ctx
+        self.followers = cfg.formation_schedule(where).followers
+        for f in self.followers:
+            require(f in ctx.neighbours, f"robots.{ctx.name}.neighbours", list(ctx.neighbours),
+                    f"the leader broadcasts to its neighbours; add follower {f!r}")
+        self.leader = PathLeader(ctx, cfg, "leader_nmpc")
+        self.feedback = FormationFeedback(cfg, self.followers)
+
     def step(self, obs: Observation, inbox: Sequence[PeerMessage]) -> StepResult:
-        self.inbox.update(inbox, obs.t)
-        factor = self._slowdown(obs.t, obs.dt)
+        factor = self.feedback(inbox, obs.t, obs.dt)
         u_R = self.cfg.u_R * factor
         sol = self.leader.solve(obs, u_R)
-        plan = {"s_l": float(self.leader.s), "sdot_pred": [float(v) for v in sol.sdot],
-                "delta_l": float(self.leader.nmpc.dt), "slowdown": float(factor)}
+        plan = _plan(self.leader.s, sol.sdot, self.leader.nmpc.dt, factor, self.cfg.u_R)
         tel = self.leader.telemetry(sol, u_R)
         tel["slowdown"] = float(factor)
         return StepResult(command=sol.body, messages=[Outgoing(PLAN_KIND, plan, to=tuple(self.followers))],
                           telemetry=tel)
 
 
+class KeeperOfC:
+    """A new leader's own part (docs/faults.md, "A new leader"): it keeps the team's
+    reference point C moving along the path as the Sec. 5.3 leader's virtual vehicle would,
+    at u_R times the formation feedback, from the leader progress last known, and makes the
+    plan (s_l, sdot_pred, delta_l) of (5.4)-(5.5) for the team and for itself. Its robot
+    keeps tracking its own slot with the follower's NMPC (5.8); C is left empty, since
+    the lost leader stops there."""
+
+    def __init__(self, cfg: LeaderConfig, followers: Sequence[str], s0: float, horizon: int, dt: float) -> None:
+        self.cfg, self.horizon, self.dt = cfg, horizon, dt
+        self.feedback = FormationFeedback(cfg, followers)
+        self.vehicle = VirtualVehicle(s0)
+
+    def plan(self, obs: Observation, inbox: Sequence[PeerMessage]) -> dict[str, Any]:
+        factor = self.feedback(inbox, obs.t, obs.dt)
+        s = self.vehicle.advance(obs.t)
+        sdot = self.cfg.u_R * factor
+        self.vehicle.hold(obs.t, sdot)
+        return _plan(s, [sdot] * self.horizon, self.dt, factor, self.cfg.u_R)
+
+
 class FollowerController:
     """A Sec. 5.3 follower: reference from the leader's plan, NMPC trajectory tracking (5.8)."""
 
-    def __init__(self, ctx: RobotContext, cfg: FollowerConfig) -> None:
+    def __init__(self, ctx: RobotContext, cfg: FollowerConfig, at_c: bool = False) -> None:
+        """``at_c``: this robot has no slot of its own and tracks C itself (the team's first
+        leader following a newer one, docs/faults.md)."""
         where = f"robots.{ctx.name}.controller"
         if ctx.model.kind != "omni":
             raise ConfigError(f"robots.{ctx.name}.model = {ctx.model.kind!r} is not allowed; follower_nmpc needs omni")
@@ -443,7 +497,8 @@ class FollowerController:
         self.cfg, self.ctx = cfg, ctx
         self.path = ctx.own_path
         self.schedule = cfg.formation_schedule(where)
-        require(ctx.name in self.schedule.followers, f"{where}.formations", sorted(self.schedule.followers),
+        self.leader = cfg.leader
+        require(at_c or ctx.name in self.schedule.followers, f"{where}.formations", sorted(self.schedule.followers),
                 f"must place this follower {ctx.name!r}")
         s_end = max([w.s_end for w in self.schedule.windows], default=0.0)
         d, s_at, pair = planned_min_separation(self.path, self.schedule, -1.0, s_end + 1.0, leader=cfg.leader)
@@ -455,14 +510,29 @@ class FollowerController:
         self.nmpc = OmniTrackingNMPC(ctx.model, cfg.horizon, ctx.dt, cfg.Q, cfg.R, cfg.gains,
                                      terminal=cfg.terminal, solver=cfg.solver_config(), name=f"{ctx.name}_follower")
         self.geometry = self.path.table()
-        self.inbox = LatestMessages(kinds=(PLAN_KIND,), senders=(cfg.leader,), accept=_usable_plan)
+        self.inbox = LatestMessages(kinds=(PLAN_KIND,), accept=_usable_plan)
         self.plan: LeaderPlan | None = None
+        self.u_R: float | None = None
+        """The leader's nominal speed from its newest plan (a new leader keeps it)."""
+
+    def follow(self, leader: str) -> None:
+        """Take plans from ``leader`` from now on; the newest plan held (the previous
+        leader's) stays the fill-in until the new one's arrives."""
+        self.leader = leader
+
+    def progress(self, t: float) -> float | None:
+        """The leader progress s_c this follower estimates at time t (None without a plan)."""
+        if self.plan is None:
+            return None
+        t_cap = self.plan.t_receipt + self.cfg.plan_timeout_s - self.plan.age_at_receipt
+        return float(self.plan.progress(min(t, t_cap))[0])
 
     def _receive(self, t: float, inbox: Sequence[PeerMessage]) -> None:
-        for got in self.inbox.update(inbox, t):
+        for got in self.inbox.update((m for m in inbox if m.sender == self.leader), t):
             p = got.payload
             self.plan = LeaderPlan(float(p["s_l"]), tuple(float(v) for v in p["sdot_pred"]), float(p["delta_l"]),
                                    got.stamp, got.message.age, got.received_at)
+            self.u_R = float(p["u_R"]) if "u_R" in p else self.u_R
 
     def step(self, obs: Observation, inbox: Sequence[PeerMessage]) -> StepResult:
         cfg = self.cfg
@@ -479,8 +549,8 @@ class FollowerController:
         sol = self.nmpc.solve(obs.pose, rows)
         err = float(np.hypot(*(np.asarray(obs.pose[:2]) - ref.pose[0, :2])))
         s_own = ref.progress_of(obs.pose)
-        messages = [Outgoing(STATUS_KIND, {"tracking_error": err}, to=(cfg.leader,))] \
-            if cfg.formation_feedback else []
+        messages = [Outgoing(STATUS_KIND, {"tracking_error": err}, to=(self.leader,))] \
+            if cfg.formation_feedback and self.leader != self.ctx.name else []
         tel = {
             "ref": [float(ref.pose[0, 0]), float(ref.pose[0, 1]), float(wrap_to_pi(ref.pose[0, 2]))],
             "s": float(ref.s_i[0]),
@@ -495,13 +565,109 @@ class FollowerController:
         return StepResult(command=sol.body, messages=messages, telemetry=tel)
 
 
+def _role_config(cls: type, ctx: RobotContext, **overrides: Any):
+    """``cls`` (LeaderConfig or FollowerConfig) from this robot's own ``[controller]`` table,
+    keeping the keys ``cls`` knows (a follower's table has no leader-only keys and the
+    other way round), with ``overrides``."""
+    names = {f.name for f in dataclasses.fields(cls) if f.init}
+    cfg = from_table(cls, {k: v for k, v in ctx.params.items() if k in names}, f"robots.{ctx.name}.controller")
+    return dataclasses.replace(cfg, **overrides)
+
+
+class LeaderFollowing:
+    """One member of a Sec. 5.3 team, leader or follower, under the succession rule.
+
+    The rule (docs/faults.md, "A new leader"): when the leader this member knows is in
+    ``Observation.lost`` (and some other member is not), the new leader is the first robot
+    of :attr:`succession` (the team in the scenario's robot order, the same list for every
+    member) that is not lost, and the term rises by one. Members that see the same robots
+    lost pick the same leader without a message. The new leader keeps its slot and keeps C
+    (:class:`KeeperOfC`); everyone keeps its offsets from C. A ``leader_plan`` carries the
+    term: a member that hears a plan of a higher term takes its sender as leader (a leader
+    that comes back, or a member that learnt of a loss later); a plan of a lower term is
+    ignored, so a returning leader follows, at C, instead of taking the lead back.
+    """
+
+    def __init__(self, ctx: RobotContext, cfg: LeaderConfig | FollowerConfig, lead: bool) -> None:
+        self.ctx = ctx
+        schedule = cfg.formation_schedule(f"robots.{ctx.name}.controller")
+        first = ctx.name if lead else cfg.leader
+        team = {first, *schedule.followers}
+        self.succession = tuple(r for r in ctx.robots if r in team)
+        """Who leads next: the team in the scenario's robot order."""
+        self.term = 0
+        self.leader = first
+        self.role: LeaderController | FollowerController = (LeaderController(ctx, cfg) if lead
+                                                             else FollowerController(ctx, cfg))
+        self.keeper: KeeperOfC | None = None
+
+    @property
+    def leading(self) -> bool:
+        return self.leader == self.ctx.name
+
+    def _elect(self, lost: frozenset[str]) -> None:
+        """The succession rule, applied until the leader known is not lost. A member that
+        has lost every other member of the team cannot tell a dead team from its own radio
+        gone quiet: it keeps what it knows and elects no one."""
+        while self.leader in lost and any(r not in lost for r in self.succession if r != self.ctx.name):
+            old, self.leader = self.leader, next(r for r in self.succession if r not in lost)
+            self.term += 1
+            logger.info("%s: leader %s lost; %s leads (term %d)", self.ctx.name, old, self.leader, self.term)
+
+    def _adopt(self, inbox: Sequence[PeerMessage]) -> None:
+        """A plan of a higher term: its sender leads."""
+        for m in inbox:
+            term = m.payload.get("term", 0) if m.kind == PLAN_KIND else 0
+            if isinstance(term, int) and term > self.term:
+                self.term, self.leader = term, m.sender
+                logger.info("%s: %s leads (term %d, heard)", self.ctx.name, m.sender, term)
+
+    def _take_role(self, t: float) -> None:
+        me, role = self.ctx.name, self.role
+        if self.leading and isinstance(role, FollowerController) and self.keeper is None:
+            # promoted: keep C from the leader progress last known, at the team's speed
+            s0 = role.progress(t)
+            if s0 is None:  # never heard a plan: C from the schedule's start
+                s0 = 0.0
+            extra = {} if role.u_R is None else {"u_R": role.u_R}
+            cfg = _role_config(LeaderConfig, self.ctx, **extra)
+            others = [r for r in self.succession if r != me]
+            self.keeper = KeeperOfC(cfg, others, s0, role.cfg.horizon, role.nmpc.dt)
+            role.follow(me)
+        elif not self.leading:
+            self.keeper = None
+            if isinstance(role, LeaderController):  # the first leader, back to a newer one: follow at C
+                self.role = FollowerController(self.ctx, _role_config(FollowerConfig, self.ctx, leader=self.leader),
+                                               at_c=True)
+            else:
+                role.follow(self.leader)
+
+    def step(self, obs: Observation, inbox: Sequence[PeerMessage]) -> StepResult:
+        self._elect(obs.lost)
+        self._adopt(inbox)
+        self._take_role(obs.t)
+        plan = None
+        if self.keeper is not None:
+            plan = self.keeper.plan(obs, inbox)
+            inbox = [*inbox, PeerMessage(self.ctx.name, PLAN_KIND, obs.t, 0.0, plan)]
+        res = self.role.step(obs, inbox)
+        if plan is not None:
+            res.messages.append(Outgoing(PLAN_KIND, plan, to=tuple(r for r in self.succession if r != self.ctx.name)))
+            res.telemetry["slowdown"] = plan["slowdown"]
+        if self.leading:
+            res.messages = [Outgoing(m.kind, {**m.payload, "term": self.term}, m.to) if m.kind == PLAN_KIND else m
+                            for m in res.messages]
+        res.telemetry.update(leading=self.leading, term=self.term)
+        return res
+
+
 @controller(config=LeaderConfig, needs_path=True, models=("omni",))
-def build_leader(ctx: RobotContext, cfg: LeaderConfig) -> LeaderController:
+def build_leader(ctx: RobotContext, cfg: LeaderConfig) -> LeaderFollowing:
     """Builder of ``leader_nmpc`` (Sec. 5.3)."""
-    return LeaderController(ctx, cfg)
+    return LeaderFollowing(ctx, cfg, lead=True)
 
 
 @controller(config=FollowerConfig, needs_path=True, models=("omni",))
-def build_follower(ctx: RobotContext, cfg: FollowerConfig) -> FollowerController:
+def build_follower(ctx: RobotContext, cfg: FollowerConfig) -> LeaderFollowing:
     """Builder of ``follower_nmpc`` (Sec. 5.3)."""
-    return FollowerController(ctx, cfg)
+    return LeaderFollowing(ctx, cfg, lead=False)

@@ -1,0 +1,154 @@
+"""A leader-following team (Sec. 5.3, E5.1) whose leader is lost elects a new one by a rule
+every follower applies locally (docs/faults.md, "A new leader"); a returning leader follows
+the leader of the higher term instead of taking the lead back."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from agent.controllers import build_controller
+from agent.node import AgentNode
+from agent.runtime import RobotRuntime
+from copath.control import Observation, PeerMessage, RobotContext
+from copath.scenario import load_scenario
+from copath.wire.keys import Keys
+from copath.wire.link import MemoryBus
+from copath.wire.messages import PeerEnvelope
+from agent.controllers.leader_following import FollowerConfig, follower_reference
+from copath.config import from_table
+from orchestrator.metrics import trace_from_records
+from sim.node import SimNode
+from tests.conftest import config
+
+T_KILL = 12.0
+"""Kill time [s]: the leader's s is about 4.8 m, in the triangle before the column (E5.1)."""
+
+
+def _scenario(sensors: bool = False):
+    """E5.1 under ``continue``; ``sensors``: with the ring of range sensors (Sec. 4.4.3), so
+    the safety filter sees the stopped leader once it no longer hears it."""
+    scen = load_scenario(config("e5.1-"))
+    scen = dataclasses.replace(scen, run=dataclasses.replace(scen.run, on_robot_failure="continue"))
+    return dataclasses.replace(scen, sensors=dataclasses.replace(scen.sensors, enabled=True)) if sensors else scen
+
+
+@pytest.fixture(scope="module")
+def killed():
+    """E5.1 in one process for 30 s; the leader's process goes away at T_KILL (its link
+    closes: its token disappears and it answers no more observations, like SIGKILL)."""
+    scen = _scenario(sensors=True)
+    keys = Keys("election")
+    sim = None
+    bus = MemoryBus(clock=lambda: sim.world.t)
+    agents = {n: AgentNode(RobotRuntime(scen, n, keys), keys, bus.link(), "lockstep") for n in scen.robot_names}
+    k_kill = int(round(T_KILL / scen.run.dt))
+
+    def tick(k):
+        if k == k_kill:
+            agents["leader"].link.close()
+
+    sim = SimNode(scen, keys, bus.link(), duration_s=30.0, on_tick=tick)
+    for a in agents.values():
+        a.start()
+    try:
+        ok = sim.run()
+    finally:
+        for a in agents.values():
+            a.link.close()
+        sim.link.close()
+    assert ok
+    return scen, keys, bus.records, trace_from_records(bus.records, keys)
+
+
+def _plans(records, sender):
+    """(stamp, s_l) of every ``leader_plan`` ``sender`` published, once each."""
+    seen = {}
+    for _, _, r in records:
+        if isinstance(r, PeerEnvelope) and r.sender == sender and r.kind == "leader_plan":
+            seen[r.seq] = (r.stamp, r.payload["s_l"], r.payload["term"])
+    return [seen[k] for k in sorted(seen)]
+
+
+def test_the_first_surviving_follower_leads_and_the_team_keeps_its_formation(killed):
+    scen, keys, records, trace = killed
+    events = [r for _, _, r in records if getattr(r, "TYPE", "") == "event" and r.what == "robot_lost"]
+    assert [e.detail["robot"] for e in events] == ["leader"]
+    f1, f2 = trace.robots["f1"], trace.robots["f2"]
+    # exactly one robot leads at every step: the leader up to the loss, f1 from then on
+    assert all(d["leading"] for d in trace.robots["leader"].telemetry)
+    assert max(trace.robots["leader"].telemetry_t) <= T_KILL + 1e-9
+    assert all(d["leading"] == (t > T_KILL) for t, d in zip(f1.telemetry_t, f1.telemetry))
+    assert not any(d["leading"] for d in f2.telemetry)
+    plans = _plans(records, "f1")
+    assert plans and plans[0][0] > T_KILL and {p[2] for p in plans} == {1}
+    # C goes on from where the lost leader's plan left it: no jump
+    last = _plans(records, "leader")[-1]
+    assert abs(plans[0][1] - (last[1] + 0.4 * (plans[0][0] - last[0]))) < 0.05
+    # after re-convergence: f1 and f2 in their slots from f1's C, on their offset curves
+    path = scen.paths["main"]
+    sched = from_table(FollowerConfig, scen.robot("f2").params, "f2").formation_schedule("f2")
+    t_c, s_c = np.array([p[0] for p in plans]), np.array([p[1] for p in plans])
+    for name in ("f1", "f2"):
+        rt = trace.robots[name]
+        tt = np.array(rt.telemetry_t)
+        tt = tt[(tt > T_KILL + 10.0) & (tt <= t_c[-1])]
+        sc = np.interp(tt, t_c, s_c)
+        ref = follower_reference(path.table(), sched, name, sc, np.ones_like(sc))
+        pose = rt.pose_at(tt)
+        steady = ~np.array([sched.in_transition(v) for v in sc])
+        formation_err = np.hypot(*(pose[:, :2] - ref.pose[:, :2]).T)[steady]
+        q = sched.offsets(name, sc)[3]
+        lateral = np.array([np.min(np.hypot(*(path.pos(np.linspace(v - 0.6, v + 0.6, 241)) - p[:2]).T))
+                            for v, p in zip(ref.s_i, pose)])
+        assert steady.sum() > 50 and formation_err.max() < 0.05, (name, formation_err.max())
+        assert np.abs(lateral - np.abs(q))[steady].max() < 0.05, name
+    # no one ran into the stopped leader (seen by the range sensors only: it no longer talks,
+    # so the safety filter forgets its last position after safety.max_age_s) or another robot;
+    # omni footprints touch at 0.4 m
+    tt = np.array(f2.telemetry_t)
+    for a, b in (("f1", "leader"), ("f2", "leader"), ("f1", "f2")):
+        d = np.hypot(*(trace.robots[a].pose_at(tt)[:, :2] - trace.robots[b].pose_at(tt)[:, :2]).T)
+        assert d.min() >= 0.4, (a, b, d.min())
+
+
+def _ctx(scen, name):
+    return RobotContext.for_robot(scen, name)
+
+
+def test_a_returning_leader_follows_the_new_one():
+    """The old leader's new process starts at term 0 and leads; the first plan of term 1 it
+    hears makes it follow f1 at C, the point it had (no flip-flop)."""
+    scen = _scenario()
+    ctrl = build_controller(scen.robot("leader").controller, _ctx(scen, "leader"))
+    path = scen.paths["main"]
+    pose = np.array([*path.pos(0.0), path.theta(0.0)])
+    dt = scen.run.dt
+    res = ctrl.step(Observation(t=0.0, pose=pose, dt=dt), [])
+    assert res.telemetry["leading"] and res.messages[0].payload["term"] == 0
+    plan = {"s_l": 1.0, "sdot_pred": [0.4, 0.4, 0.4], "delta_l": dt, "slowdown": 1.0, "u_R": 0.4, "term": 1}
+    res = ctrl.step(Observation(t=dt, pose=pose, dt=dt), [PeerMessage("f1", "leader_plan", 0.0, dt, plan)])
+    assert not res.telemetry["leading"] and res.telemetry["term"] == 1 and ctrl.leader == "f1"
+    assert np.allclose(res.telemetry["ref"][:2], path.pos(1.0 + 0.4 * dt), atol=1e-6)  # C, from f1's plan
+    assert not any(m.kind == "leader_plan" for m in res.messages)
+    # a plan of term 0 (someone who has not heard of the election) changes nothing
+    old = dict(plan, term=0)
+    res = ctrl.step(Observation(t=2 * dt, pose=pose, dt=dt), [PeerMessage("f2", "leader_plan", dt, dt, old)])
+    assert not res.telemetry["leading"] and ctrl.leader == "f1"
+
+
+def test_every_follower_picks_the_same_leader_and_a_cut_off_one_picks_none():
+    scen = _scenario()
+    f1 = build_controller(scen.robot("f1").controller, _ctx(scen, "f1"))
+    f2 = build_controller(scen.robot("f2").controller, _ctx(scen, "f2"))
+    assert f1.succession == f2.succession == ("leader", "f1", "f2")
+    f1._elect(frozenset({"leader"}))
+    f2._elect(frozenset({"leader"}))
+    assert f1.leader == f2.leader == "f1" and f1.term == f2.term == 1
+    f2._elect(frozenset({"f1"}))  # f1 lost in turn, the first leader back: first in order again
+    assert f2.leader == "leader" and f2.term == 2
+    cut = build_controller(scen.robot("f2").controller, _ctx(scen, "f2"))
+    cut._elect(frozenset({"leader", "f1"}))  # hears no one: its own radio may be the fault
+    assert cut.leader == "leader" and cut.term == 0

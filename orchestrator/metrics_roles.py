@@ -12,7 +12,9 @@ simulator's true poses, and returns the fleet keys of metrics.json:
   each within the tolerance ``[metrics] task_tolerance_m`` (default: the controllers'
   ``arrive_tol``). The targets are the template after the translation (and rotation) the
   team agreed on (Algorithm 6.1, announced as ``formation_targets``); announced targets
-  that are not a rigid motion of the template do not count;
+  that are not a rigid motion of the template do not count. The rule lives in
+  :mod:`copath.occupancy`, which the simulator's stop rule ``run.until = "tasks_done"``
+  uses too;
 - ``task_times_s``: for each truth-completed formation, the time from the first robot
   starting it (t = 0 for the first) to that tick;
 - ``tasks_completed_reported`` and ``task_times_reported_s``: the same from what the
@@ -36,47 +38,14 @@ from typing import Any
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
+from copath.occupancy import first_occupied, formations, is_rigid_placement, task_tolerance
+
 __all__ = ["roles_metrics"]
-
-
-def _formations(scenario) -> list:
-    for r in scenario.robots:
-        if r.controller == "roles":
-            return list(r.params.get("formations") or [])
-    return []
 
 
 def _latest(times: np.ndarray, grid: np.ndarray) -> np.ndarray:
     """Index of the latest sample at or before each grid time (-1 before the first)."""
     return np.searchsorted(times, grid + 1e-9, side="right") - 1
-
-
-def _rigid_residual(template: np.ndarray, targets: np.ndarray) -> float:
-    """Largest distance between ``targets`` and the best rigid motion (rotation and
-    translation, Kabsch) of ``template`` onto them, point by point [m]."""
-    if template.shape != targets.shape:
-        return np.inf
-    a, b = template - template.mean(axis=0), targets - targets.mean(axis=0)
-    u, _, vt = np.linalg.svd(a.T @ b)
-    d = np.sign(np.linalg.det(u @ vt)) or 1.0
-    R = u @ np.diag([1.0, d]) @ vt
-    return float(np.max(np.hypot(*(a @ R - b).T)))
-
-
-def _occupied(P: np.ndarray, G: np.ndarray, tol: float) -> np.ndarray:
-    """Per tick: are the targets G occupied by the positions P (T, n, 2), one robot per
-    target, within tol? Every target when n >= len(G), every robot otherwise."""
-    D = np.linalg.norm(P[:, :, None, :] - G[None, None, :, :], axis=-1)  # (T, n, m)
-    near = D <= tol
-    need_targets = P.shape[1] >= len(G)
-    cand = near.any(axis=1).all(axis=1) if need_targets else near.any(axis=2).all(axis=1)
-    ok = np.zeros(len(P), dtype=bool)
-    for k in np.nonzero(cand)[0]:  # distinct robots per target (a matching), checked exactly
-        rows, cols = linear_sum_assignment(D[k])
-        ok[k] = bool(np.all(D[k][rows, cols] <= tol))
-        if ok[k]:
-            break  # the first such tick is all the caller needs
-    return ok
 
 
 def roles_metrics(trace, scenario) -> dict[str, Any]:
@@ -95,7 +64,7 @@ def roles_metrics(trace, scenario) -> dict[str, Any]:
     dict
         The fleet keys listed in the module docstring.
     """
-    forms = _formations(scenario)
+    forms = formations(scenario)
     names = [r.name for r in scenario.robots if r.controller == "roles" and r.name in trace.robots]
     out: dict[str, Any] = {
         "tasks_total": len(forms),
@@ -113,7 +82,7 @@ def roles_metrics(trace, scenario) -> dict[str, Any]:
     if not names or not forms:
         return out
     robots = {n: trace.robots[n] for n in names}
-    tol = _tolerance(scenario, names)
+    tol = task_tolerance(scenario, names)
     grid = np.unique(np.concatenate([np.asarray(rt.telemetry_t, dtype=float) for rt in robots.values()]))
     if len(grid) == 0:
         return out
@@ -167,14 +136,12 @@ def roles_metrics(trace, scenario) -> dict[str, Any]:
         later = np.nonzero((task > k).any(axis=0))[0]
         t_next = float(grid[later[0]]) if len(later) else np.inf
         t_end = None
-        template = np.asarray(forms[k], dtype=float).reshape(-1, 2)
-        if _rigid_residual(template, G) <= 1e-6 + 1e-6 * float(np.max(np.abs(template), initial=1.0)):
+        if is_rigid_placement(forms[k], G):
             win = np.nonzero((t_truth >= t_a - 1e-9) & (t_truth <= t_next + 1e-9))[0]
-            if len(win):
-                hit = np.nonzero(_occupied(P[win], G, tol))[0]
-                if len(hit):
-                    t_end = float(t_truth[win[hit[0]]])
-                    times.append(round(t_end - t_start, 6))
+            hit = first_occupied(P[win], G, tol) if len(win) else None
+            if hit is not None:
+                t_end = float(t_truth[win[hit]])
+                times.append(round(t_end - t_start, 6))
         horizon = t_end if t_end is not None else (t_rep if t_rep is not None else np.inf)
         X, held = [], []
         for rt in robots.values():
@@ -207,19 +174,6 @@ def roles_metrics(trace, scenario) -> dict[str, Any]:
         out["assignment_cost"] = round(float(sum(cost)), 6)
         out["assignment_cost_optimal"] = round(float(sum(cost_opt)), 6)
     return out
-
-
-def _tolerance(scenario, names: list[str]) -> float:
-    """``[metrics] task_tolerance_m``, else the roles controllers' ``arrive_tol``."""
-    tol = (getattr(scenario, "metrics", None) or {}).get("task_tolerance_m")
-    if tol is not None:
-        return float(tol)
-    from agent.controllers.roles.config import RolesConfig  # noqa: PLC0415
-
-    for r in scenario.robots:
-        if r.name in names:
-            return float(r.params.get("arrive_tol", RolesConfig.arrive_tol))
-    return float(RolesConfig.arrive_tol)
 
 
 def _pose_at(rt, t: float) -> np.ndarray:

@@ -23,8 +23,11 @@ import queue
 import sys
 import threading
 import time
-from typing import Callable
+from typing import Callable, Mapping
 
+import numpy as np
+
+from copath.occupancy import LastFormationWatch, formations, task_tolerance
 from copath.scenario import ConfigError, Scenario, load_scenario
 from copath.wire.cli import add_config_arguments, session_config_from_args
 from copath.wire.faults import windows_between
@@ -40,26 +43,34 @@ __all__ = ["SimNode", "main"]
 
 
 class TaskWatch:
-    """``run.until = "tasks_done"``: when every robot of the task queue (Chapter 6,
-    controller ``roles``) reports the last formation done, from their telemetry.
+    """``run.until = "tasks_done"``: when the truth completes the last formation of the
+    task queue (Chapter 6, controller ``roles``).
 
-    The stop rule only ends the run; the metrics still grade the formations from the
-    truth (``orchestrator/metrics_roles.py``). Each robot publishes its telemetry before
-    its command, so in lockstep the simulator has a tick's reports when it has its
-    commands, and the end tick is the same over Zenoh and in one process."""
+    A controller never grades itself: the rule is the metrics' own
+    (:mod:`copath.occupancy`, docs/metrics.md M5): the true positions occupy the targets
+    the team announced for the last formation, one robot per target, within the task
+    tolerance. Only the announced targets come from the robots' telemetry
+    (``formation_targets``, data); the positions are the simulator's. Each robot publishes
+    its telemetry before its command, so in lockstep the simulator has a tick's
+    announcements when it has its commands, and the end tick is the same over Zenoh and in
+    one process."""
 
     def __init__(self, scenario: Scenario) -> None:
-        roles = [r for r in scenario.robots if r.controller == "roles"]
-        self.names = [r.name for r in roles]
-        self.last = max((len(r.params.get("formations") or ()) for r in roles), default=0) - 1
-        self.state: dict[str, bool] = {n: False for n in self.names}
+        self.names = [r.name for r in scenario.robots if r.controller == "roles"]
+        self.watch = LastFormationWatch(self.names, formations(scenario), task_tolerance(scenario, self.names))
+        self._lock = threading.Lock()  # telemetry arrives on the link's threads
 
     def update(self, name: str, rec: Telemetry) -> None:
-        d = rec.data
-        self.state[name] = d.get("task") == self.last and bool(d.get("task_done"))
+        with self._lock:
+            self.watch.update(name, rec.t, rec.data)
 
-    def all_done(self) -> bool:
-        return bool(self.names) and all(self.state.values())
+    def done(self, t: float, poses: Mapping[str, np.ndarray]) -> bool:
+        """The true poses at time t complete the last formation."""
+        if not self.names:
+            return False
+        P = np.array([poses[n][:2] for n in self.names], dtype=float)
+        with self._lock:
+            return self.watch.completed(t, P)
 
 
 class SimNode:
@@ -76,7 +87,7 @@ class SimNode:
         self._started = False
         self.tasks = TaskWatch(scenario) if scenario.run.until == "tasks_done" else None
         self.tasks_done_t: float | None = None
-        """Simulated time at which every robot reported the last task done."""
+        """Simulated time at which the truth completed the last formation."""
         self.world = World(scenario)
         self.names = list(scenario.robot_names)
         self.start_timeout_s = start_timeout_s
@@ -110,7 +121,7 @@ class SimNode:
             return False
         t = float(self.world.t)
         if self.tasks_done_t is None:
-            if not self.tasks.all_done():
+            if not self.tasks.done(t, self.world.poses):
                 return False
             self.tasks_done_t = t
             self._event("tasks_done", t=t)

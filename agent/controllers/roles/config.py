@@ -5,6 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from copath.config import require
+from copath.occupancy import ARRIVE_TOL_M
 
 __all__ = ["RolesConfig", "ORIENTATIONS"]
 
@@ -70,7 +71,7 @@ class RolesConfig:
     """Integral gain on the Metropolis Laplacian in (6.16) [1/s]."""
     min_task_s: float = 2.0
     """Shortest time spent on a task before the threshold may end it [s]."""
-    arrive_tol: float = 0.05
+    arrive_tol: float = ARRIVE_TOL_M
     """A robot has finished its task within this distance of its target [m]."""
     stop_radius: float = 0.01
     """Closer than this to the (shifted) target the robot stands still [m]."""

@@ -22,6 +22,7 @@ user waypoints (E6.6).
 
 from __future__ import annotations
 
+import bisect
 import math
 from dataclasses import dataclass
 from typing import Callable
@@ -57,6 +58,9 @@ def wrap_to_pi(a):
 
 
 CurveFn = Callable[[np.ndarray], np.ndarray]
+
+_SCALARS = (float, int, np.float64)
+"""Types of an arc length that :meth:`Path.frame` looks up without numpy arrays."""
 
 
 @dataclass(frozen=True)
@@ -121,6 +125,11 @@ class Path:
             raise ValueError(f"path {curve.name!r} is declared closed but its ends differ")
         self._cas = None
         self._tables: dict[float, PathTable] = {}
+        h1, h2 = self._h, self._h * 10
+        self._stencil = np.array([0.0, h1, -h1, 2 * h1, -2 * h1, h2, -h2, 2 * h2, -2 * h2])
+        """Offsets in phi of the nine curve points :meth:`frame` evaluates per arc length."""
+        self._s_list, self._phi_list, self._dphi_list = s.tolist(), phi.tolist(), self._dphi_tab.tolist()
+        """The s -> phi table as Python floats, for the scalar look-up."""
 
     # -- derivatives of the parametric curve (5-point stencils) -------------------
     def _d1(self, phi: np.ndarray) -> np.ndarray:
@@ -216,11 +225,13 @@ class Path:
         Scalars in, floats out; this is the hot path of the controllers (one stencil of
         nine curve points per s instead of separate calls for position, tangent and
         curvature)."""
+        if type(s) in _SCALARS:
+            return self._frame_scalar(float(s))
         scalar = np.ndim(s) == 0
         s_in, laps, extra = self._split(s)
         phi = self._phi(s_in)
         h1, h2 = self._h, self._h * 10
-        offs = np.array([0.0, h1, -h1, 2 * h1, -2 * h1, h2, -h2, 2 * h2, -2 * h2])
+        offs = self._stencil
         R = self._r((phi[None, :] + offs[:, None]).reshape(-1)).reshape(9, -1, 2)
         d1 = (-R[3] + 8 * R[1] - 8 * R[2] + R[4]) / (12 * h1)
         d2 = (-R[7] + 16 * R[5] - 30 * R[0] + 16 * R[6] - R[8]) / (12 * h2 * h2)
@@ -237,6 +248,48 @@ class Path:
         if scalar:
             return float(pos[0, 0]), float(pos[0, 1]), float(th[0]), float(k[0])
         return pos[:, 0], pos[:, 1], th, k
+
+    def _frame_scalar(self, s: float) -> tuple[float, float, float, float]:
+        """:meth:`frame` at one arc length given as a Python number: the same operations
+        in the same order on Python floats, so the result is bit-identical to the array
+        path, without its numpy overhead on one-element arrays. The curve and the
+        transcendental functions are still numpy's (the curve's nine stencil points in
+        one call; ``arctan2`` and ``hypot`` as ufuncs), since libm's and numpy's may
+        differ in the last bit (docs/performance.md, P10)."""
+        L = self.length
+        if self.closed:
+            laps = math.floor(s / L)
+            s_in, extra = s - laps * L, 0.0
+        else:
+            laps = 0.0
+            s_in = min(max(s, 0.0), L)
+            extra = s - s_in
+        S = self._s_tab
+        i = min(max(bisect.bisect_right(self._s_list, s_in) - 1, 0), len(S) - 2)
+        s0, s1 = self._s_list[i], self._s_list[i + 1]
+        h = s1 - s0
+        u = (s_in - s0) / h
+        u2, u3 = u * u, u * u * u
+        phi = ((2 * u3 - 3 * u2 + 1) * self._phi_list[i] + (u3 - 2 * u2 + u) * h * self._dphi_list[i]
+               + (-2 * u3 + 3 * u2) * self._phi_list[i + 1] + (u3 - u2) * h * self._dphi_list[i + 1])
+        h1, h2 = self._h, self._h * 10
+        R = self._r(phi + self._stencil).tolist()
+        d1x = (-R[3][0] + 8 * R[1][0] - 8 * R[2][0] + R[4][0]) / (12 * h1)
+        d1y = (-R[3][1] + 8 * R[1][1] - 8 * R[2][1] + R[4][1]) / (12 * h1)
+        d2x = (-R[7][0] + 16 * R[5][0] - 30 * R[0][0] + 16 * R[6][0] - R[8][0]) / (12 * h2 * h2)
+        d2y = (-R[7][1] + 16 * R[5][1] - 30 * R[0][1] + 16 * R[6][1] - R[8][1]) / (12 * h2 * h2)
+        sp = float(np.hypot(d1x, d1y))
+        k = (d1x * d2y - d1y * d2x) / float(np.power(sp, 3))
+        raw = float(np.arctan2(d1y, d1x))
+        ref = float(np.interp(s_in, S, self._theta_tab))
+        th = raw + 2 * math.pi * round((ref - raw) / (2 * math.pi))
+        x, y = R[0]
+        if extra != 0.0:
+            x = x + extra * float(np.cos(th))
+            y = y + extra * float(np.sin(th))
+            k = 0.0
+        th = th + 2 * math.pi * self.winding * laps
+        return x, y, th, k
 
     def normal(self, s) -> np.ndarray:
         """Left unit normal n = (-sin theta, cos theta) at s."""

@@ -47,8 +47,24 @@ class WireError(ValueError):
     """A received message does not match its schema."""
 
 
+_PLAIN_TYPES = frozenset({float, int, str, bool, type(None)})
+"""Exact types msgpack packs as they are (subclasses such as numpy's float64 take the slow path)."""
+
+
 def to_plain(x: Any) -> Any:
-    """Convert numpy arrays/scalars and tuples into msgpack-friendly Python values."""
+    """Convert numpy arrays/scalars and tuples into msgpack-friendly Python values.
+
+    Values of the plain types and lists, tuples and dicts of them take a fast path (no
+    recursion per element); the result, and so the packed bytes, are the same as the
+    general conversion's (docs/performance.md, P10)."""
+    t = type(x)
+    if t in _PLAIN_TYPES:
+        return x
+    if t is list or t is tuple:
+        return [v if type(v) in _PLAIN_TYPES else to_plain(v) for v in x]
+    if t is dict:
+        return {(k if type(k) is str else str(k)): (v if type(v) in _PLAIN_TYPES else to_plain(v))
+                for k, v in x.items()}
     if hasattr(x, "tolist"):
         return x.tolist()
     if isinstance(x, (list, tuple)):
@@ -148,6 +164,10 @@ def validate_payload(kind: str, payload: Any) -> None:
             _check_plain(payload[key], f"{kind}.{key}")
 
 
+_FIELD_NAMES: dict[type, tuple[str, ...]] = {}
+"""Field names of each record class, in declaration order (read once per class)."""
+
+
 class _Record:
     """Mixin: pack/unpack with version, tag and field-type validation."""
 
@@ -155,7 +175,10 @@ class _Record:
     FIELDS: ClassVar[dict[str, str]]
 
     def to_dict(self) -> dict[str, Any]:
-        d = {f.name: to_plain(getattr(self, f.name)) for f in dataclasses.fields(self)}
+        names = _FIELD_NAMES.get(type(self))
+        if names is None:  # dataclasses.fields() costs more than the packing of a small record
+            names = _FIELD_NAMES[type(self)] = tuple(f.name for f in dataclasses.fields(self))
+        d = {n: to_plain(getattr(self, n)) for n in names}
         d["v"] = WIRE_VERSION
         d["type"] = self.TYPE
         return d

@@ -32,7 +32,7 @@ from copath.paths import wrap_to_pi
 from copath.models import limit_change, world_velocity
 from copath.safety import SafetyGuard
 from copath.scenario import Scenario
-from copath.wire.faults import FaultyInbox, LinkFaults
+from copath.wire.faults import SILENT_AFTER_S, FaultyInbox, LinkFaults
 from copath.wire.keys import Keys
 from copath.wire.messages import Command, Estimate, Event, Obs, PeerEnvelope, Telemetry, WireError, to_plain
 from copath.wire.trust import RejectLog, StampWindow
@@ -105,6 +105,12 @@ class RobotRuntime:
         self.lost: frozenset[str] = frozenset()
         """Robots whose liveliness token went away (the run goes on without them,
         ``run.on_robot_failure``): their messages are dropped and the controller is told."""
+        self._heard: dict[str, float] = {}
+        """Newest stamp of a robot-to-robot message delivered from each sender (after faults)."""
+        self._silent: dict[str, float] = {}
+        """Senders heard before and not for ``SILENT_AFTER_S`` (a radio gone quiet): lost here,
+        in ``Observation.lost``, until one of their messages is delivered again; the value
+        is when they were last heard."""
         self._early: list[PeerEnvelope] | None = []
         """Peer messages that came before the first step, checked against its clock."""
         self._injected: list[tuple[float, str, str]] = []  # (stamp, sender, "dropped" | "partitioned")
@@ -220,6 +226,7 @@ class RobotRuntime:
         lost = self.lost
         # a deterministic order whatever the arrival order (sums over neighbours stay bitwise equal)
         for env in sorted(self.inbox.pop_ready(now), key=lambda e: (e.stamp, e.sender, e.seq)):
+            self._heard[env.sender] = max(env.stamp, self._heard.get(env.sender, env.stamp))
             if env.sender in lost:
                 continue
             if self.comm_range > 0 and math.hypot(env.pos[0] - pose[0], env.pos[1] - pose[1]) > self.comm_range:
@@ -230,6 +237,8 @@ class RobotRuntime:
             inbox.append(PeerMessage(env.sender, env.kind, env.stamp, now - env.stamp, env.payload, tuple(env.pos),
                                      None if env.cov is None else tuple(env.cov)))
         self.counters.delivered += len(inbox)
+        silence_events = self._silence(now)
+        lost = lost | frozenset(self._silent)
         ranges = None if obs.ranges is None else np.asarray(obs.ranges, dtype=float)
         observation = Observation(
             t=now,
@@ -283,8 +292,27 @@ class RobotRuntime:
             peers,
             Telemetry(obs.k, float(now), to_plain(telemetry)),
             estimate,
-            self._fault_events(now),
+            self._fault_events(now) + silence_events,
         )
+
+    def _silence(self, now: float) -> list[Event]:
+        """Senders heard before but not for ``SILENT_AFTER_S`` (the liveliness lease) are lost
+        here until a message of theirs is delivered again (docs/faults.md). Only this
+        robot's inbox decides; in lockstep every message stamped before ``now`` has arrived,
+        so the decision is the same in every run with the seed. Each change is an event:
+        ``peer_silent`` (robot, last_heard) and ``peer_heard`` (robot, silent_from)."""
+        events = []
+        for s, t in sorted(self._heard.items()):
+            if s in self.lost:  # its token went: lost already, whatever it says
+                continue
+            quiet = now - t > SILENT_AFTER_S + 1e-9
+            if quiet and s not in self._silent:
+                self._silent[s] = t
+                events.append(Event(float(now), self.name, "peer_silent", {"robot": s, "last_heard": float(t)}))
+            elif not quiet and s in self._silent:
+                events.append(Event(float(now), self.name, "peer_heard",
+                                    {"robot": s, "silent_from": float(self._silent.pop(s))}))
+        return events
 
     def _fault_events(self, now: float) -> list[Event]:
         """One ``faults_injected`` event for the fault layer's drops of messages stamped

@@ -198,14 +198,16 @@ def trace_from_records(records, keys: Keys, radii: dict[str, float] | None = Non
 
 
 def _outage(trace: Trace, name: str) -> tuple[int, float]:
-    """(rejoins, seconds of simulated time gone) of one robot from the simulator's events."""
+    """(rejoins, seconds of simulated time gone) of one robot from the simulator's events.
+    A radio silence (``cause = "silence"``) counts as time gone, not as a rejoin: no
+    process was restarted."""
     lost_at, total, rejoins = None, 0.0, 0
     for e in sorted((e for e in trace.events if e.source == "sim" and e.detail.get("robot") == name), key=lambda e: e.t):
         if e.what == "robot_lost" and lost_at is None:
             lost_at = e.t
         elif e.what == "robot_rejoined" and lost_at is not None:
             total += e.t - lost_at
-            lost_at, rejoins = None, rejoins + 1
+            lost_at, rejoins = None, rejoins + (e.detail.get("cause") != "silence")
     if lost_at is not None:
         total += max(0.0, trace.sim_time_s - lost_at)
     return rejoins, round(total, 6)

@@ -30,7 +30,7 @@ import numpy as np
 from copath.occupancy import LastFormationWatch, formations, task_tolerance
 from copath.scenario import ConfigError, Scenario, load_scenario
 from copath.wire.cli import add_config_arguments, session_config_from_args
-from copath.wire.faults import windows_between
+from copath.wire.faults import SILENT_AFTER_S, silence_outages, windows_between
 from copath.wire.keys import Keys
 from copath.wire.link import Link
 from copath.wire.messages import Command, End, Event, Start, Stats, Telemetry
@@ -167,10 +167,24 @@ class SimNode:
     def _event(self, what: str, **detail) -> None:
         self.link.publish(self.keys.event("sim"), Event(float(self.world.t), "sim", what, detail))
 
-    def _fault_windows(self, t0: float, t1: float) -> None:
-        """Partition windows opening or closing in [t0, t1) go on the timeline as events."""
-        for what, detail in windows_between(self.scenario.network, t0, t1):
+    def _fault_windows(self, t0: float, t1: float) -> str | None:
+        """Partition and silence windows opening or closing in [t0, t1) go on the timeline as
+        events. A radio silent for the lease (``copath.wire.faults.SILENT_AFTER_S``) is a lost
+        robot under ``run.on_robot_failure``: ``fail`` returns the run's failure reason;
+        ``continue`` and ``restart`` put ``robot_lost`` and, when its radio is back,
+        ``robot_rejoined`` on the timeline (``cause = "silence"``). The robot is not held: its
+        process is alive and its controller drives it, cut off; a restart cannot bring a
+        radio back, so ``restart`` is ``continue`` here (docs/faults.md)."""
+        net = self.scenario.network
+        for what, detail in windows_between(net, t0, t1):
             self._event(what, **detail)
+        for what, d in silence_outages(net, t0, t1):
+            if what == "silent" and self.policy == "fail":
+                return (f"robot {d['robot']} silent since t={d['start_s']:.2f} s "
+                        f"(no robot heard it for {SILENT_AFTER_S:g} s)")
+            self._event("robot_lost" if what == "silent" else "robot_rejoined", robot=d["robot"],
+                        policy=self.policy, cause="silence", since=d["start_s"])
+        return None
 
     def _reject_event(self, closing: bool = False) -> None:
         """At most one ``messages_rejected`` event a second (copath.wire.trust.RejectLog)."""
@@ -235,7 +249,9 @@ class SimNode:
         n_ticks = int(round(self.duration_s / run.dt))
         for k in range(n_ticks):
             self.world.t = k * run.dt
-            self._fault_windows(k * run.dt, (k + 1) * run.dt)
+            reason = self._fault_windows(k * run.dt, (k + 1) * run.dt)
+            if reason:
+                return k, False, reason
             for n in self.names:
                 self.link.publish(self.keys.obs(n), self.world.observe(n, k, self.sent))
             self._apply_transitions()
@@ -294,7 +310,9 @@ class SimNode:
                     break
                 self.world.command(name, cmd.cmd)
             if t >= next_obs - 1e-9:
-                self._fault_windows(next_obs, next_obs + run.dt)
+                reason = self._fault_windows(next_obs, next_obs + run.dt)
+                if reason:
+                    return k, False, reason
                 for n in self.names:
                     self.link.publish(self.keys.obs(n), self.world.observe(n, k))
                 self.world.saturate_all()

@@ -17,6 +17,7 @@ instant it was sent, which makes lockstep runs independent of process scheduling
 from __future__ import annotations
 
 import heapq
+import math
 import zlib
 from dataclasses import dataclass
 
@@ -24,7 +25,14 @@ import numpy as np
 
 from copath.scenario import NetworkConfig
 
-__all__ = ["LinkFaults", "FaultyInbox", "Delivery", "windows_between"]
+__all__ = ["LinkFaults", "FaultyInbox", "Delivery", "windows_between", "silence_outages", "SILENT_AFTER_S"]
+
+SILENT_AFTER_S = 1.0
+"""A robot from which a neighbour has heard no robot-to-robot message for this long counts as
+lost there (``Observation.lost``), and a radio silence this long is handed to
+``run.on_robot_failure``: the liveliness lease (``SessionConfig.lease_ms``, 1 s), so a frozen
+process and a silent radio are found alike (docs/faults.md, "When a robot dies, freezes or
+goes quiet")."""
 
 
 def _h(name: str) -> int:
@@ -100,6 +108,25 @@ def windows_between(net: NetworkConfig, t0: float, t1: float) -> list[tuple[str,
             out.append(("silence_start", detail))
         if t0 - 1e-9 <= s.end_s < t1 - 1e-9:
             out.append(("silence_end", detail))
+    return out
+
+
+def silence_outages(net: NetworkConfig, t0: float, t1: float,
+                    after_s: float = SILENT_AFTER_S) -> list[tuple[str, dict]]:
+    """Radio silences that become a robot's loss in [t0, t1): ``("silent", detail)`` at
+    ``start_s + after_s`` for a window longer than ``after_s`` (no one has heard the robot
+    for that long), ``("heard", detail)`` at its ``end_s``. The simulator applies
+    ``run.on_robot_failure`` to them (docs/faults.md)."""
+    out = []
+    for i, s in enumerate(getattr(net, "silence", ())):
+        if s.end_s - s.start_s <= after_s:
+            continue
+        detail = {"index": i, "robot": s.robot, "start_s": s.start_s,
+                  "end_s": s.end_s if math.isfinite(s.end_s) else None}
+        if t0 - 1e-9 <= s.start_s + after_s < t1 - 1e-9:
+            out.append(("silent", detail))
+        if t0 - 1e-9 <= s.end_s < t1 - 1e-9:
+            out.append(("heard", detail))
     return out
 
 

@@ -1,0 +1,109 @@
+"""A radio silence (``network.silence``) longer than the liveliness lease is a lost robot:
+its neighbours put it in ``Observation.lost`` from their own inboxes (``peer_silent``) and
+take it back when they hear it again (``peer_heard``); the simulator, which owns the fault
+model, applies ``run.on_robot_failure`` (docs/faults.md, "When a robot dies, freezes or
+goes quiet")."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from copath.scenario import Silence, load_scenario
+from copath.wire.faults import SILENT_AFTER_S, silence_outages
+from copath.wire.session import SessionConfig
+from orchestrator.inprocess import run_scenario
+from tests.conftest import config
+
+
+def _silent(stem: str, robot: str, start: float, end: float, policy: str):
+    scen = load_scenario(config(stem))
+    return dataclasses.replace(scen, network=dataclasses.replace(scen.network, silence=(Silence(robot, start, end),)),
+                               run=dataclasses.replace(scen.run, on_robot_failure=policy))
+
+
+def _events(res, *what):
+    return [r for _, _, r in res.records if getattr(r, "TYPE", "") == "event" and r.what in what]
+
+
+def _end(res):
+    return next(r for _, _, r in res.records if getattr(r, "TYPE", "") == "end")
+
+
+def test_the_silence_threshold_is_the_liveliness_lease():
+    assert SILENT_AFTER_S == SessionConfig(mode="peer").lease_ms / 1000.0
+
+
+def test_only_silences_longer_than_the_lease_become_losses():
+    from copath.scenario import NetworkConfig
+
+    net = NetworkConfig(silence=(Silence("r1", 2.0, 2.5), Silence("r2", 3.0, 6.0), Silence("r3", 1.0, float("inf"))))
+    got = [(w, d["robot"], round(k * 0.1, 1)) for k in range(100) for w, d in silence_outages(net, k * 0.1, (k + 1) * 0.1)]
+    assert got == [("silent", "r3", 2.0), ("silent", "r2", 4.0), ("heard", "r2", 6.0)]
+
+
+def test_fail_ends_the_run_with_the_reason():
+    res = run_scenario(_silent("e5.5-", "r2", 5.0, 10.0, "fail"), duration_s=20.0)
+    end = _end(res)
+    assert not end.ok and end.reason == "robot r2 silent since t=5.00 s (no robot heard it for 1 s)"
+    assert end.t == pytest.approx(5.0 + SILENT_AFTER_S)
+
+
+def test_a_silence_shorter_than_the_lease_is_not_a_loss():
+    res = run_scenario(_silent("e5.5-", "r2", 5.0, 5.5, "fail"), duration_s=10.0)
+    assert _end(res).ok
+    assert not _events(res, "robot_lost", "peer_silent")
+    assert _events(res, "faults_injected")  # the messages were dropped all the same
+
+
+@pytest.fixture(scope="module")
+def continued():
+    """E5.5 (r1 - r2 - r3 in a line) for 35 s; r3's radio silent over [5, 15) s."""
+    return run_scenario(_silent("e5.5-", "r3", 5.0, 15.0, "continue"), duration_s=35.0)
+
+
+def test_continue_drops_the_silent_robot_and_readmits_it(continued):
+    res = continued
+    assert _end(res).ok
+    sim = [(e.what, e.t, e.detail["robot"], e.detail["cause"]) for e in _events(res, "robot_lost", "robot_rejoined")]
+    assert sim == [("robot_lost", 6.0, "r3", "silence"), ("robot_rejoined", 15.0, "r3", "silence")]
+    # r2, r3's only neighbour, finds the silence itself one lease after r3's last message
+    # (stamped 4.9 s), and r3, cut off, loses r2 the same way; both are back a step after the window
+    seen = sorted((e.source, e.what, round(e.t, 3), e.detail["robot"]) for e in _events(res, "peer_silent", "peer_heard"))
+    assert seen == [("r2", "peer_heard", 15.1, "r3"), ("r2", "peer_silent", 6.0, "r3"),
+                    ("r3", "peer_heard", 15.1, "r2"), ("r3", "peer_silent", 6.0, "r2")]
+    m = res.metrics
+    assert m["robots"]["r3"]["outage_s"] == pytest.approx(9.0) and m["robots"]["r3"]["restarts"] == 0
+    assert m["robots"]["r1"]["outage_s"] == 0
+
+
+def test_continue_keeps_the_rest_in_consensus_and_the_robot_rejoins_it(continued):
+    tr = continued.trace
+    xi = {n: (np.array(tr.robots[n].telemetry_t), np.array([d["xi"] for d in tr.robots[n].telemetry]))
+          for n in ("r1", "r2", "r3")}
+    t = np.arange(10.0, 15.0, 0.1)  # r3 silent: r1 and r2 coordinate over the rest of the graph
+    x1, x2 = (np.interp(t, *xi[n]) for n in ("r1", "r2"))
+    assert np.max(np.abs(x1 - x2)) < 0.05
+    # after the window r3 is heard again and the three reach consensus (from the truth)
+    assert continued.metrics["fleet"]["coordination_error_max_m"] < 0.05
+    for n in ("r1", "r2", "r3"):
+        assert continued.metrics["robots"][n]["path_error_max_m"] < 0.1, n
+
+
+def test_a_silent_leader_is_replaced_and_follows_when_heard_again():
+    """E5.1: the leader's radio goes quiet over [10, 14) s. The followers elect f1 (from
+    their own inboxes); once heard again, the old leader hears f1's plans of term 1 and
+    follows at C: one leader at a time from the followers' point of view, none flip-flops."""
+    res = run_scenario(_silent("e5.1-", "leader", 10.0, 14.0, "continue"), duration_s=22.0)
+    tr = res.trace
+    lead = {n: [(t, d["leading"]) for t, d in zip(tr.robots[n].telemetry_t, tr.robots[n].telemetry)]
+            for n in ("leader", "f1", "f2")}
+    assert not any(on for _, on in lead["f2"])
+    f1_on = [t for t, on in lead["f1"] if on]
+    assert f1_on and f1_on[0] == pytest.approx(11.0, abs=0.1) and lead["f1"][-1][1]
+    assert all(t >= f1_on[0] for t in f1_on) and len(f1_on) == sum(t >= f1_on[0] for t, _ in lead["f1"])
+    back = [t for t, on in lead["leader"] if not on]
+    assert back and back[0] > 14.0 and not lead["leader"][-1][1]  # follows from its first term-1 plan on
+    assert res.metrics["fleet"]["collisions"] == 0

@@ -107,6 +107,8 @@ class RobotRuntime:
         ``run.on_robot_failure``): their messages are dropped and the controller is told."""
         self._heard: dict[str, float] = {}
         """Newest stamp of a robot-to-robot message delivered from each sender (after faults)."""
+        self._told: frozenset[str] = frozenset()
+        """:attr:`lost` as of the last step (its changes are events)."""
         self._silent: dict[str, float] = {}
         """Senders heard before and not for ``SILENT_AFTER_S`` (a radio gone quiet): lost here,
         in ``Observation.lost``, until one of their messages is delivered again; the value
@@ -237,7 +239,7 @@ class RobotRuntime:
             inbox.append(PeerMessage(env.sender, env.kind, env.stamp, now - env.stamp, env.payload, tuple(env.pos),
                                      None if env.cov is None else tuple(env.cov)))
         self.counters.delivered += len(inbox)
-        silence_events = self._silence(now)
+        silence_events = self._losses(now)
         lost = lost | frozenset(self._silent)
         ranges = None if obs.ranges is None else np.asarray(obs.ranges, dtype=float)
         observation = Observation(
@@ -295,13 +297,18 @@ class RobotRuntime:
             self._fault_events(now) + silence_events,
         )
 
-    def _silence(self, now: float) -> list[Event]:
-        """Senders heard before but not for ``SILENT_AFTER_S`` (the liveliness lease) are lost
-        here until a message of theirs is delivered again (docs/faults.md). Only this
-        robot's inbox decides; in lockstep every message stamped before ``now`` has arrived,
-        so the decision is the same in every run with the seed. Each change is an event:
-        ``peer_silent`` (robot, last_heard) and ``peer_heard`` (robot, silent_from)."""
-        events = []
+    def _losses(self, now: float) -> list[Event]:
+        """What this robot knows of lost robots, as events when it changes (docs/faults.md):
+        ``peer_lost`` / ``peer_rejoined`` when a token went or came back (:attr:`lost`), and
+        ``peer_silent`` (robot, last_heard) / ``peer_heard`` (robot, silent_from) for senders
+        heard before but not for ``SILENT_AFTER_S`` (the liveliness lease): these are lost
+        here until a message of theirs is delivered again. Only this robot's inbox decides
+        silence; in lockstep every message stamped before ``now`` has arrived, so the
+        decision is the same in every run with the seed."""
+        lost, told = self.lost, self._told
+        self._told = lost
+        events = [Event(float(now), self.name, "peer_lost", {"robot": r}) for r in sorted(lost - told)]
+        events += [Event(float(now), self.name, "peer_rejoined", {"robot": r}) for r in sorted(told - lost)]
         for s, t in sorted(self._heard.items()):
             if s in self.lost:  # its token went: lost already, whatever it says
                 continue

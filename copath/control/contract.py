@@ -25,6 +25,8 @@ floats, or None) recorded every step and used by ``orchestrator/metrics.py``:
 ``task``, ``task_done`` task index and whether this robot has finished it (Ch. 6).
 ``target``             [x, y] assigned target position or None (Ch. 6).
 ``conflicts_resolved`` cumulative count of negotiations this robot initiated (Ch. 6).
+``leading``, ``term``  whether this robot leads its leader-following team (Sec. 5.3) and
+                       the election term it knows (0 until a leader is lost, docs/faults.md).
 Keys that do not apply are simply left out. With ``[safety]`` on, the runtime adds
 ``safety_active``, ``safety_change`` and ``safety_ms`` (``copath.safety``, docs/safety.md);
 controllers never set them.
@@ -63,8 +65,9 @@ class Observation:
     sensor_max_range: float = 0.0
     """Range of each sensor [m]."""
     lost: frozenset[str] = frozenset()
-    """Robots known to be gone (their liveliness token disappeared: process dead, frozen or
-    silent): a controller drops them from its graph (``run.on_robot_failure``)."""
+    """Robots known to be gone: their liveliness token disappeared (process dead or frozen),
+    or this robot has heard nothing from them for the lease (a radio gone quiet, until heard
+    again). A controller drops them from its graph (``run.on_robot_failure``)."""
 
 
 @dataclass(frozen=True)

@@ -76,6 +76,10 @@ def test_the_first_surviving_follower_leads_and_the_team_keeps_its_formation(kil
     scen, keys, records, trace = killed
     events = [r for _, _, r in records if getattr(r, "TYPE", "") == "event" and r.what == "robot_lost"]
     assert [e.detail["robot"] for e in events] == ["leader"]
+    told = [(e.source, e.detail["robot"], e.t) for _, _, e in records
+            if getattr(e, "TYPE", "") == "event" and e.what == "peer_lost"]
+    assert sorted(told)[:2] == [("f1", "leader", pytest.approx(T_KILL, abs=0.1)),
+                                ("f2", "leader", pytest.approx(T_KILL, abs=0.1))] and len(told) == 2
     f1, f2 = trace.robots["f1"], trace.robots["f2"]
     # exactly one robot leads at every step: the leader up to the loss, f1 from then on
     assert all(d["leading"] for d in trace.robots["leader"].telemetry)

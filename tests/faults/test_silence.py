@@ -107,3 +107,13 @@ def test_a_silent_leader_is_replaced_and_follows_when_heard_again():
     back = [t for t, on in lead["leader"] if not on]
     assert back and back[0] > 14.0 and not lead["leader"][-1][1]  # follows from its first term-1 plan on
     assert res.metrics["fleet"]["collisions"] == 0
+
+
+def test_silence_detection_is_the_same_in_every_lockstep_run():
+    """The receivers decide from their own inboxes; in lockstep those hold the same
+    messages at every step, so two runs with the seed give the same events, byte for byte."""
+    runs = [run_scenario(_silent("e5.5-", "r1", 2.0, 4.0, "continue"), duration_s=6.0) for _ in range(2)]
+    got = [[(e.t, e.source, e.what, sorted(e.detail.items())) for e in _events(r, "peer_silent", "peer_heard",
+                                                                               "robot_lost", "robot_rejoined")]
+           for r in runs]
+    assert got[0] == got[1] and len(got[0]) == 6  # r1 <-> r2 both ways, twice, and the simulator's two

@@ -267,8 +267,7 @@ class RolesController:
             centroid, rotation = tasks.transform
             payload["xf"] = [float(centroid[0]), float(centroid[1]), float(rotation)]
         if self.cfg.relay_positions:
-            roles.known[self.name] = (self._t, float(roles.snapshot[0]), float(roles.snapshot[1]), int(roles.position))
-            payload["known"] = [[n, st, x, y, c] for n, (st, x, y, c) in sorted(roles.known.items())]
+            payload["known"] = roles.known_payload()
         if self.agreement is not None:
             payload.update(self.agreement.payload())
         return Outgoing(MESSAGE_KIND, payload)

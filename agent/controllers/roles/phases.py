@@ -90,9 +90,12 @@ class PeerTable:
         self.timeout = float(timeout)
         self.inbox = LatestMessages(kinds=(MESSAGE_KIND,), accept=_has_position)
         self.peers: dict[str, Peer] = {}
+        self._fresh: tuple[float, dict[str, Peer], dict[int, dict[str, Peer]]] | None = None
+        """(t, neighbours at t, task -> those working on it), reset by :meth:`ingest`."""
 
     def ingest(self, inbox, t: float) -> None:
         """Take in one step's messages (newest per neighbour by stamp)."""
+        self._fresh = None
         for got in self.inbox.update(inbox, t):
             pl = dict(got.payload)
             pos = got.position if got.position is not None else pl.get("pos")
@@ -109,12 +112,18 @@ class PeerTable:
             )
 
     def fresh(self, t: float) -> dict[str, Peer]:
-        """Neighbours N_i at time t."""
-        return {n: q for n, q in self.peers.items() if t - q.heard <= self.timeout}
+        """Neighbours N_i at time t (computed once per step: callers must not modify it)."""
+        if self._fresh is None or self._fresh[0] != t:
+            self._fresh = (t, {n: q for n, q in self.peers.items() if t - q.heard <= self.timeout}, {})
+        return self._fresh[1]
 
     def same_task(self, t: float, task: int) -> dict[str, Peer]:
-        """Neighbours working on ``task``."""
-        return {n: q for n, q in self.fresh(t).items() if q.task == task}
+        """Neighbours working on ``task`` (once per step and task: callers must not modify it)."""
+        fresh = self.fresh(t)
+        by_task = self._fresh[2]
+        if task not in by_task:
+            by_task[task] = {n: q for n, q in fresh.items() if q.task == task}
+        return by_task[task]
 
 
 # -- phase 1: agreement on the formation's placement ----------------------------------
@@ -216,8 +225,11 @@ class Assignment:
         """Rulings this robot made -> when; repeated for a while so a lost message does not lose them."""
         self.snapshot = np.asarray(p, dtype=float).copy()
         """Own start position of the task."""
-        self.known: dict[str, tuple[float, float, float, int]] = {name: (t, float(p[0]), float(p[1]), -1)}
-        """With ``relay_positions``: robot -> (stamp, start x, start y, claim) relayed over hops."""
+        self.known: dict[str, tuple[float, float]] = {name: (float(p[0]), float(p[1]))}
+        """With ``relay_positions``: robot -> its start position of the task, relayed over
+        hops. A robot's start position is fixed for the task, so an entry never changes
+        once known and the table only grows; the message carries it as
+        ``{name: [x, y]}`` (:meth:`relay`)."""
         self.known_changed = t
         self.announce_targets = False
         self.announce_index = False
@@ -247,7 +259,7 @@ class Assignment:
         """
         self.merge(same)
         if relay:
-            others = [(x, y) for n, (_, x, y, _c) in sorted(self.known.items()) if n != self.name]
+            others = [xy for n, xy in sorted(self.known.items()) if n != self.name]
             pos = local_hungarian(self.snapshot, others, self.targets, range(len(self.targets)))
             if pos is not None and pos in self.book.taken:
                 # someone already holds it (a robot this one has not heard of): nearest free one
@@ -292,18 +304,23 @@ class Assignment:
             self.set_park(p, same, clearance)
 
     def relay(self, same: dict[str, Peer], t: float) -> None:
-        """Merge the neighbours' tables of start positions and claims (freshest entry wins)."""
-        self.known[self.name] = (t, float(self.snapshot[0]), float(self.snapshot[1]), int(self.book.position))
+        """Merge the neighbours' tables of start positions (``known``, ``{name: [x, y]}``);
+        a name not heard of before grows the table (and restarts the ``gather_s`` wait)."""
+        known = self.known
         for q in same.values():
-            for e in q.payload.get("known") or []:
-                if len(e) != 5 or e[0] == self.name:
+            table = q.payload.get("known")
+            if not isinstance(table, dict):
+                continue
+            for name, xy in table.items():
+                if name in known or not (isinstance(xy, list) and len(xy) == 2):
                     continue
-                name, stamp = str(e[0]), float(e[1])
-                old = self.known.get(name)
-                if old is None:
-                    self.known_changed = t
-                if old is None or stamp > old[0]:
-                    self.known[name] = (stamp, float(e[2]), float(e[3]), int(e[4]))
+                known[name] = (float(xy[0]), float(xy[1]))
+                self.known_changed = t
+
+    def known_payload(self) -> dict[str, list[float]]:
+        """The table for the message: ``{name: [x, y]}`` by name (one map of pairs: a
+        third of the decoding and validation cost of a list of records per entry)."""
+        return {n: [x, y] for n, (x, y) in sorted(self.known.items())}
 
     def merge(self, same: dict[str, Peer]) -> None:
         """Unite the taken sets and claims the neighbours announced (ambiguity A24)."""

@@ -302,6 +302,9 @@ class AgentNode:
                     break
                 self._lockstep_step(obs)
         else:
+            drop = getattr(self.link, "drop_when_congested", None)
+            if drop is not None:  # realtime: the newest broadcast matters, a starved receiver loses old ones
+                drop(self.keys.peer_broadcast(self.rt.name), self.keys.peer_direct(self.rt.name, "*"))
             _yield_to_simulator()
             while not self.started.wait(timeout=0.5):
                 if self._end_due():
@@ -351,7 +354,7 @@ class AgentNode:
         self.link.publish(self.keys.stats(self.rt.name), Stats(self.rt.name, self.link.published, counters))
 
 
-REALTIME_NICE = 5
+REALTIME_NICE = 15
 """Realtime: agents lower their scheduling priority by this much (``os.nice``) so that on a
 busy machine the simulator's 100 Hz physics and the router are served first
 (docs/performance.md, P9); 0 leaves it."""

@@ -107,7 +107,7 @@ class RunConfig:
     watchdog_s: float = 5.0
     """An agent that hears nothing from the simulator for this long commands zero
     velocity and logs an event (0: off)."""
-    liveliness_grace_s: float = 2.0
+    liveliness_grace_s: float = 5.0
     """A liveliness token that disappears counts as a lost process only when it has not come
     back within this time [s]: a transport reset under CPU starvation (the 1 s lease lapses,
     the client reconnects) is not a loss (docs/faults.md). Under ``continue``/``restart`` the

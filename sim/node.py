@@ -95,6 +95,7 @@ class SimNode:
         self.alive: set[str] = set()
         self.lost: list[str] = []
         self._gone_at: dict[str, float] = {}
+        self._closing = False
         """``fail``: robots whose token disappeared, when (monotonic); lost after the grace period."""
         self.policy = scenario.run.on_robot_failure
         self.down: set[str] = set()
@@ -138,7 +139,8 @@ class SimNode:
                     self._transitions.put((name, True))
             elif name in self.alive:
                 self.alive.discard(name)
-                logger.warning("robot %s's liveliness token disappeared", name)
+                if self._started_run and not self._closing and name in self.names:
+                    logger.warning("robot %s's liveliness token disappeared", name)
                 if self._started_run and self.policy != "fail":
                     self._transitions.put((name, False))
                 elif self._started_run:  # "fail": lost unless it is back within the grace period
@@ -294,6 +296,9 @@ class SimNode:
 
     def _realtime(self) -> tuple[int, bool, str]:
         run = self.scenario.run
+        drop = getattr(self.link, "drop_when_congested", None)
+        if drop is not None:  # a starved agent loses old observations instead of stalling the router
+            drop(self.keys.obs("*"))
         t0 = time.monotonic()
         next_obs = 0.0
         k = 0
@@ -332,6 +337,7 @@ class SimNode:
         return k, True, "duration reached"
 
     def _finish(self, k: int, reason: str, ok: bool) -> None:
+        self._closing = True
         self._reject_event(closing=True)
         self.link.publish(self.keys.end, End(k, float(self.world.t), reason, ok))
         counters = {"missed_ticks": self.missed, "stale_commands": self.stale, "physics_overruns": self.overruns, "rejects": self.link.rejects}

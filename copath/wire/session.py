@@ -23,6 +23,7 @@ from typing import Any, Callable
 
 import zenoh
 
+from .link import key_matches
 from .messages import WireError, unpack
 from .trust import RejectLog, check_origin
 
@@ -93,6 +94,10 @@ class SessionConfig:
         if self.mode == "client":
             # keep retrying the router instead of failing at once (docs/measurements.md, M3)
             conf.insert_json5("connect/timeout_ms", "-1")
+            # after a transport reset (a lease that lapsed on a starved machine) reconnect within
+            # 0.1-1 s, well inside run.liveliness_grace_s (zenoh's default backs off from 1 s to 4 s)
+            conf.insert_json5("connect/retry", '{"period_init_ms": 100, "period_max_ms": 1000, '
+                                               '"period_increase_factor": 2}')
         if self.lease_ms:
             conf.insert_json5("transport/link/tx/lease", str(int(self.lease_ms)))
         for k, v in self.extra:
@@ -128,6 +133,23 @@ class ZenohLink:
         self._decls: list[Any] = []
         self._lock = threading.Lock()
         self._closed = False
+        self._droppable: tuple[str, ...] = ()
+
+    def drop_when_congested(self, *key_exprs: str) -> None:
+        """Publish records on keys matching ``key_exprs`` with congestion control DROP.
+
+        For streams where only the newest value matters (realtime observations and
+        neighbour broadcasts): a receiver that falls behind (a starved process) then loses
+        old samples instead of making the router wait for it. With BLOCK the router's
+        forwarding waits for that receiver's queue, stops reading the other links (their
+        1 s lease lapses) and after 5 s closes the transport (docs/performance.md, P10).
+        The local recorder still gets every record. Call before the first publish on a key."""
+        self._droppable += tuple(key_exprs)
+
+    def _congestion(self, key: str) -> "zenoh.CongestionControl":
+        if any(key_matches(key, e) for e in self._droppable):
+            return zenoh.CongestionControl.DROP
+        return zenoh.CongestionControl.BLOCK
 
     @property
     def rejects(self) -> int:
@@ -153,13 +175,13 @@ class ZenohLink:
                 ke = self._keyexprs.get(key)
                 if ke is None:
                     ke = self._keyexprs[key] = zenoh.KeyExpr(key)  # parsed once
-                self.session.put(ke, data, congestion_control=zenoh.CongestionControl.BLOCK)
+                self.session.put(ke, data, congestion_control=self._congestion(key))
                 self.published += 1
             return
         with self._lock:
             pub = self._pubs.get(key)
             if pub is None:
-                pub = self.session.declare_publisher(key, congestion_control=zenoh.CongestionControl.BLOCK)
+                pub = self.session.declare_publisher(key, congestion_control=self._congestion(key))
                 self._pubs[key] = pub
             pub.put(data)
             self.published += 1

@@ -36,7 +36,7 @@ def test_sim_counts_a_robot_lost_only_after_the_grace_period():
     node._on_alive(KEYS.alive("r2"), True)  # back: forgiven
     node._gone_at.clear()
     node._on_alive(KEYS.alive("r3"), False)
-    node._gone_at["r3"] -= 2.5  # as if 2.5 s had passed (grace 2 s)
+    node._gone_at["r3"] -= 5.5  # as if 5.5 s had passed (grace 5 s)
     assert node._lost_reason() == "robot r3 lost (its process stopped)"
     assert node._lost_reason() == "robot r3 lost (its process stopped)"  # stays lost
 
@@ -58,7 +58,7 @@ def test_agent_stops_only_when_the_simulator_stays_away():
     node._on_sim_alive(KEYS.alive("sim"), True)  # back within the grace period
     assert not node._end_due() and node._sim_gone_at is None
     node._on_sim_alive(KEYS.alive("sim"), False)
-    node._sim_gone_at -= 2.5
+    node._sim_gone_at -= 5.5
     assert node._end_due() and node.ended.is_set()
 
 

@@ -44,6 +44,7 @@ import re
 from typing import Any, Iterator
 
 import numpy as np
+import foxglove
 from foxglove import messages as fm
 
 from copath.scenario import Scenario
@@ -430,29 +431,25 @@ def foxglove_layout(scenario: Scenario) -> str:
 
 
 class McapVizSink:
-    """Writes Foxglove messages into an open ``mcap.writer.Writer`` as protobuf, with the
-    schema (a FileDescriptorSet) that ``foxglove-sdk`` ships for each type."""
+    """Logs Foxglove messages as protobuf, with the schema (a FileDescriptorSet) that
+    ``foxglove-sdk`` ships for each type, on channels of a ``foxglove.Context`` whose MCAP
+    writer is the run's log (``orchestrator/mcaplog.py``)."""
 
-    def __init__(self, writer) -> None:
-        self._w = writer
-        self._schemas: dict[str, int] = {}
-        self._channels: dict[str, int] = {}
+    def __init__(self, context: foxglove.Context) -> None:
+        self._ctx = context
+        self._channels: dict[str, foxglove.Channel] = {}
         self.count = 0
 
-    def _channel(self, topic: str, msg) -> int:
+    def _channel(self, topic: str, msg) -> foxglove.Channel:
         ch = self._channels.get(topic)
         if ch is None:
             schema = type(msg).get_schema()
-            sid = self._schemas.get(schema.name)
-            if sid is None:
-                sid = self._w.register_schema(schema.name, schema.encoding, schema.data)
-                self._schemas[schema.name] = sid
-            ch = self._w.register_channel(topic=topic, message_encoding="protobuf", schema_id=sid)
+            ch = foxglove.Channel(topic, message_encoding="protobuf", context=self._ctx,
+                                  schema=foxglove.Schema(name=schema.name, encoding=schema.encoding, data=schema.data))
             self._channels[topic] = ch
         return ch
 
     def log(self, topic: str, msg, log_time_ns: int) -> None:
-        """Write ``msg`` (caller holds the writer's lock)."""
-        self._w.add_message(self._channel(topic, msg), log_time=log_time_ns, data=msg.encode(),
-                            publish_time=log_time_ns)
+        """Log ``msg`` (caller holds the recorder's lock)."""
+        self._channel(topic, msg).log(msg.encode(), log_time=log_time_ns)
         self.count += 1

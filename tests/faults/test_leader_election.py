@@ -156,3 +156,48 @@ def test_every_follower_picks_the_same_leader_and_a_cut_off_one_picks_none():
     cut = build_controller(scen.robot("f2").controller, _ctx(scen, "f2"))
     cut._elect(frozenset({"leader", "f1"}))  # hears no one: its own radio may be the fault
     assert cut.leader == "leader" and cut.term == 0
+
+
+@pytest.mark.integration
+@pytest.mark.slow
+@pytest.mark.timeout(900)
+def test_a_restarted_leader_follows_the_new_one_in_a_fleet(tmp_path, procs):
+    """E5.1 as processes over Zenoh, ``restart``: the leader's process is killed mid-run; f1
+    leads to the end, and the restarted leader rejoins as a follower of f1 (term 1) from
+    its first steps on and never takes the lead back."""
+    import json
+    import os
+    import signal
+    import time
+
+    from orchestrator.mcaplog import read_log
+    from tests.integration.conftest import child_pids, cmdline
+
+    p = procs.start(["-m", "orchestrator", "run", str(config("e5.1-")), "--out", str(tmp_path), "--run-id", "elect",
+                     "--duration", "90", "-q", "--no-plots", "--set", 'run.on_robot_failure="restart"',
+                     "--set", "sensors.enabled=true"])
+    mcap = tmp_path / "run.mcap"
+    deadline = time.monotonic() + 400
+    while not (mcap.is_file() and mcap.stat().st_size > 600_000):  # about 20 s of the run
+        assert p.poll() is None and time.monotonic() < deadline, p.stderr.read().decode()[-2000:]
+        time.sleep(0.05)
+    pids = [q for q in child_pids(p.pid) if "agent" in cmdline(q) and "leader" in cmdline(q)]
+    assert len(pids) == 1
+    os.kill(pids[0], signal.SIGKILL)
+    assert p.wait(timeout=700) == 0, p.stderr.read().decode()[-3000:]
+    m = json.loads((tmp_path / "metrics.json").read_text())
+    assert m["ok"] and m["robots"]["leader"]["restarts"] == 1
+    log = read_log(mcap)
+    rejoined = [r.t for _, _, r in log.records if getattr(r, "TYPE", "") == "event" and r.what == "robot_rejoined"]
+    assert len(rejoined) == 1
+    tel: dict[str, list] = {}
+    for _, key, r in log.records:
+        if getattr(r, "TYPE", "") == "telemetry" and "leading" in r.data:
+            tel.setdefault(key.split("/")[-2], []).append((r.t, r.data["leading"], r.data["term"]))
+    f1_on = [t for t, on, _ in tel["f1"] if on]
+    assert f1_on and all(on for t, on, _ in tel["f1"] if t >= f1_on[0])  # f1 leads to the end
+    assert not any(on for _, on, _ in tel["f2"])
+    back = [(t, on, term) for t, on, term in tel["leader"] if t > f1_on[0]]  # the restarted process
+    assert back and not any(on for _, on, term in back if term == 1)
+    assert sum(1 for _, on, _ in back if on) <= 2  # leads at term 0 until the first plan of f1 arrives
+    assert back[-1][1:] == (False, 1)

@@ -94,10 +94,11 @@ class RunConfig:
     """Realtime: integration step of the simulator [s]."""
     until: str = "duration"
     """``duration``: the run lasts ``duration_s``; ``tasks_done``: it ends ``until_margin_s``
-    after every robot of a task queue (Chapter 6) reports the last task done, and at
-    ``duration_s`` at the latest (docs/performance.md, "Runs that end when their work is done")."""
+    after the truth completes the last formation of the task queue (Chapter 6; the rule of
+    docs/metrics.md, M5, :mod:`copath.occupancy`), and at ``duration_s`` at the latest
+    (docs/performance.md, "Runs that end when their work is done")."""
     until_margin_s: float = 5.0
-    """``until = "tasks_done"``: simulated time kept after the last task is reported done [s]."""
+    """``until = "tasks_done"``: simulated time kept after the truth completed the last task [s]."""
     secure: bool = False
     on_robot_failure: str = "fail"
     """What a robot process that dies or freezes (its liveliness lease expires) does to the

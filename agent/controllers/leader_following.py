@@ -581,7 +581,9 @@ class LeaderFollowing:
     ``Observation.lost`` (and some other member is not), the new leader is the first robot
     of :attr:`succession` (the team in the scenario's robot order, the same list for every
     member) that is not lost, and the term rises by one. Members that see the same robots
-    lost pick the same leader without a message. The new leader keeps its slot and keeps C
+    lost pick the same leader without a message; a member that elected another robot goes
+    back to the old leader if it hears it again before a plan of the new leader arrives
+    (it alone had lost it). The new leader keeps its slot and keeps C
     (:class:`KeeperOfC`); everyone keeps its offsets from C. A ``leader_plan`` carries the
     term: a member that hears a plan of a higher term takes its sender as leader (a leader
     that comes back, or a member that learnt of a loss later); a plan of a lower term is
@@ -600,6 +602,10 @@ class LeaderFollowing:
         self.role: LeaderController | FollowerController = (LeaderController(ctx, cfg) if lead
                                                              else FollowerController(ctx, cfg))
         self.keeper: KeeperOfC | None = None
+        self._before: tuple[str, int] | None = None
+        """(leader, term) before an election of another robot, until a plan of the new term
+        comes from the new leader: if the old leader is heard again first, this member alone
+        had lost it (a lossy link) and it goes back."""
 
     @property
     def leading(self) -> bool:
@@ -609,18 +615,28 @@ class LeaderFollowing:
         """The succession rule, applied until the leader known is not lost. A member that
         has lost every other member of the team cannot tell a dead team from its own radio
         gone quiet: it keeps what it knows and elects no one."""
+        if self._before is not None and self._before[0] not in lost:  # heard again before the new one
+            logger.info("%s: leader %s heard again; back to it (term %d)", self.ctx.name, *self._before)
+            (self.leader, self.term), self._before = self._before, None
         while self.leader in lost and any(r not in lost for r in self.succession if r != self.ctx.name):
             old, self.leader = self.leader, next(r for r in self.succession if r not in lost)
+            if self._before is None and self.leader != self.ctx.name:
+                self._before = (old, self.term)
             self.term += 1
             logger.info("%s: leader %s lost; %s leads (term %d)", self.ctx.name, old, self.leader, self.term)
 
     def _adopt(self, inbox: Sequence[PeerMessage]) -> None:
-        """A plan of a higher term: its sender leads."""
+        """A plan of a higher term: its sender leads. A plan of the leader elected, at its
+        term, confirms the election."""
         for m in inbox:
-            term = m.payload.get("term", 0) if m.kind == PLAN_KIND else 0
-            if isinstance(term, int) and term > self.term:
+            term = m.payload.get("term", 0) if m.kind == PLAN_KIND else -1
+            if not isinstance(term, int) or term < self.term:
+                continue
+            if term > self.term:
                 self.term, self.leader = term, m.sender
                 logger.info("%s: %s leads (term %d, heard)", self.ctx.name, m.sender, term)
+            if m.sender == self.leader:
+                self._before = None
 
     def _take_role(self, t: float) -> None:
         me, role = self.ctx.name, self.role

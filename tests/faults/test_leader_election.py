@@ -151,6 +151,8 @@ def test_every_follower_picks_the_same_leader_and_a_cut_off_one_picks_none():
     f1._elect(frozenset({"leader"}))
     f2._elect(frozenset({"leader"}))
     assert f1.leader == f2.leader == "f1" and f1.term == f2.term == 1
+    plan = {"s_l": 1.0, "sdot_pred": [0.4], "delta_l": scen.run.dt, "slowdown": 1.0, "u_R": 0.4, "term": 1}
+    f2._adopt([PeerMessage("f1", "leader_plan", 0.0, 0.07, plan)])  # f1's first plan: the election stands
     f2._elect(frozenset({"f1"}))  # f1 lost in turn, the first leader back: first in order again
     assert f2.leader == "leader" and f2.term == 2
     cut = build_controller(scen.robot("f2").controller, _ctx(scen, "f2"))
@@ -201,3 +203,20 @@ def test_a_restarted_leader_follows_the_new_one_in_a_fleet(tmp_path, procs):
     assert back and not any(on for _, on, term in back if term == 1)
     assert sum(1 for _, on, _ in back if on) <= 2  # leads at term 0 until the first plan of f1 arrives
     assert back[-1][1:] == (False, 1)
+
+
+def test_a_follower_that_alone_lost_the_leader_goes_back_to_it():
+    """f2 alone stops hearing the leader (a lossy link): it elects f1, which never took the
+    lead; when the leader is heard again before any plan of f1, f2 follows it again."""
+    scen = _scenario()
+    f2 = build_controller(scen.robot("f2").controller, _ctx(scen, "f2"))
+    f2._elect(frozenset({"leader"}))
+    assert f2.leader == "f1" and f2.term == 1
+    f2._elect(frozenset())
+    assert f2.leader == "leader" and f2.term == 0
+    # once the new leader's plan has come, the election stands
+    f2._elect(frozenset({"leader"}))
+    plan = {"s_l": 1.0, "sdot_pred": [0.4], "delta_l": scen.run.dt, "slowdown": 1.0, "u_R": 0.4, "term": 1}
+    f2._adopt([PeerMessage("f1", "leader_plan", 0.0, 0.07, plan)])
+    f2._elect(frozenset())
+    assert f2.leader == "f1" and f2.term == 1

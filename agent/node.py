@@ -397,7 +397,7 @@ def main(argv: list[str] | None = None) -> int:
         scenario = load_scenario(args.config)
         keys = Keys(args.run_id)
         scenario.robot(args.robot)
-        conf = session_config_from_args(args)
+        conf = dataclasses.replace(session_config_from_args(args), lease_ms=round(1e3 * scenario.run.lease_s))
         runtime = RobotRuntime(scenario, args.robot, keys)  # builds the controller (and solvers) once
     except (ConfigError, ValueError) as exc:
         print(f"copath agent: {exc}", file=sys.stderr)

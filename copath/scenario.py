@@ -108,6 +108,11 @@ class RunConfig:
     watchdog_s: float = 5.0
     """An agent that hears nothing from the simulator for this long commands zero
     velocity and logs an event (0: off)."""
+    lease_s: float = 1.0
+    """Zenoh transport lease of every process of the run and of its router [s]: a frozen
+    process loses its liveliness within about this time. On a machine with far more
+    processes than cores (about a hundred robots on two) a starved transport misses a 1 s
+    lease and is reset; a longer lease avoids that (docs/performance.md, P10)."""
     liveliness_grace_s: float = 5.0
     """A liveliness token that disappears counts as a lost process only when it has not come
     back within this time [s]: a transport reset under CPU starvation (the 1 s lease lapses,
@@ -129,6 +134,7 @@ class RunConfig:
         require(self.on_robot_failure in FAILURE_POLICIES, "run.on_robot_failure", self.on_robot_failure,
                 f"allowed: {', '.join(FAILURE_POLICIES)}")
         require(self.watchdog_s >= 0, "run.watchdog_s", self.watchdog_s, "must be >= 0 (0: off)")
+        require(self.lease_s > 0, "run.lease_s", self.lease_s, "must be > 0")
         require(self.liveliness_grace_s >= 0, "run.liveliness_grace_s", self.liveliness_grace_s, "must be >= 0")
 
 

@@ -42,11 +42,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--dt", type=float, default=0.1, metavar="S", help="control period [0.1 = 10 Hz]")
     parser.add_argument("--settle", type=float, default=20.0, metavar="S",
                         help="coordination error measured after this time [20]")
+    parser.add_argument("--lease", type=float, default=5.0, metavar="S",
+                        help="run.lease_s, the Zenoh transport lease [5]: with 1 s, a hundred processes on two "
+                             "cores miss leases and their transports are reset (docs/performance.md, P10)")
     parser.add_argument("--out", help="keep the runs here (default: a temporary directory, removed)")
     parser.add_argument("--json", action="store_true", help="print JSON instead of the table")
 
 
-def scenario_table(n: int, dt: float, duration: float, settle: float, spacing: float = 0.6) -> dict[str, Any]:
+def scenario_table(n: int, dt: float, duration: float, settle: float, spacing: float = 0.6,
+                   lease: float = 1.0) -> dict[str, Any]:
     """A realtime consensus scenario with ``n`` unicycles in a column on a scaled ellipse."""
     from copath.paths import ellipse  # noqa: PLC0415
 
@@ -66,7 +70,7 @@ def scenario_table(n: int, dt: float, duration: float, settle: float, spacing: f
         "id": "e5.4",
         "title": f"consensus scale benchmark, {n} robots",
         "run": {"duration_s": duration, "dt": dt, "clock": "realtime", "settle_s": min(settle, 0.5 * duration),
-                "seed": n},
+                "seed": n, "lease_s": lease},
         "paths": {"main": {"type": "ellipse", "a": a, "b": b}},
         "controller": {"type": "consensus", **E54_GAINS},
         "robots": robots,
@@ -81,7 +85,7 @@ def _measure(n: int, args: argparse.Namespace, root: pathlib.Path) -> dict[str, 
     from .fleet import RunOptions, new_run_id, run_fleet  # noqa: PLC0415
     from .metrics import trace_from_records  # noqa: PLC0415
 
-    table = scenario_table(n, args.dt, args.duration, args.settle)
+    table = scenario_table(n, args.dt, args.duration, args.settle, lease=args.lease)
     sc = parse_scenario(table)
     rid = new_run_id(f"bench-scale-{n}")
     t_call = time.time()
@@ -134,7 +138,7 @@ def _measure(n: int, args: argparse.Namespace, root: pathlib.Path) -> dict[str, 
 def _table(result: dict[str, Any]) -> None:
     a = result["args"]
     print(f"realtime consensus fleets (Sec. 5.5), control at {1 / a['dt']:.0f} Hz, physics at 100 Hz, "
-          f"{a['duration']:.0f} s simulated per run")
+          f"{a['duration']:.0f} s simulated per run, transport lease {a['lease']:g} s")
     rows = [dict(r, miss_pct=None if r["deadline_miss_rate"] is None else 100 * r["deadline_miss_rate"]) for r in
             result["runs"]]
     print_table(rows, [
@@ -152,5 +156,6 @@ def _table(result: dict[str, Any]) -> None:
 def run(args: argparse.Namespace) -> int:
     with scratch_dir(args.out, "scale") as root:
         rows = [_measure(n, args, root) for n in args.robots]
-    emit(args, {"args": {"dt": args.dt, "duration": args.duration, "settle": args.settle}, "runs": rows}, _table)
+    emit(args, {"args": {"dt": args.dt, "duration": args.duration, "settle": args.settle, "lease": args.lease},
+                "runs": rows}, _table)
     return 0 if all(r["ok"] for r in rows) else 1

@@ -181,6 +181,7 @@ def run_fleet(scenario: Scenario, opts: RunOptions) -> RunOutcome:
         creds = make_credentials(out / "secrets", ["sim", *scenario.robot_names])
         router_extra = _router_extra(creds, keys, list(scenario.robot_names))
     router = ZenohLink.open(SessionConfig(mode="router", listen=tuple(listen), connect=tuple(opts.connect),
+                                          lease_ms=round(1e3 * scenario.run.lease_s),
                                           extra=router_extra))
     recorder = Recorder(out / "run.mcap", keys, metadata, scenario, live=live)
     router.subscribe_raw(keys.all, recorder.write)

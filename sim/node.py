@@ -17,6 +17,7 @@ record, so the orchestrator can report it and the log stays readable.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import logging
 import os
 import queue
@@ -359,7 +360,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         scenario = load_scenario(args.config)
         keys = Keys(args.run_id)
-        conf = session_config_from_args(args)
+        conf = dataclasses.replace(session_config_from_args(args), lease_ms=round(1e3 * scenario.run.lease_s))
     except (ConfigError, ValueError) as exc:
         print(f"copath sim: {exc}", file=sys.stderr)
         return 2

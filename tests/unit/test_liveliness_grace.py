@@ -65,3 +65,11 @@ def test_agent_stops_only_when_the_simulator_stays_away():
 def test_negative_grace_is_refused_with_key_and_value():
     with pytest.raises(ConfigError, match=r"run.liveliness_grace_s = -1"):
         _scenario(-1.0)
+
+
+def test_lease_must_be_positive_and_reaches_the_table():
+    table = scenario_table(2, 0.1, 5.0, 2.0, lease=5.0)
+    assert parse_scenario(table).run.lease_s == 5.0
+    table["run"]["lease_s"] = 0
+    with pytest.raises(ConfigError, match=r"run.lease_s = 0"):
+        parse_scenario(table)

@@ -134,6 +134,8 @@ class LastFormationWatch:
         self.tol = float(tol)
         self.announced: tuple[float, int, np.ndarray] | None = None
         """(time, robot order, targets) of the first announcement of the last formation."""
+        self._rigid: bool | None = None
+        """Whether the announced targets are a rigid placement (checked once per announcement)."""
 
     def update(self, name: str, t: float, data: Mapping[str, Any]) -> None:
         """One telemetry record of robot ``name`` stamped ``t``."""
@@ -145,13 +147,16 @@ class LastFormationWatch:
         key = (float(t), self._order[name])
         if self.announced is None or key < self.announced[:2]:
             self.announced = (*key, np.asarray(G, dtype=float).reshape(-1, 2))
+            self._rigid = None
 
     @property
     def targets(self) -> np.ndarray | None:
         """The announced targets of the last formation, if they are a rigid placement."""
-        if self.announced is None or not is_rigid_placement(self.template, self.announced[2]):
+        if self.announced is None:
             return None
-        return self.announced[2]
+        if self._rigid is None:
+            self._rigid = is_rigid_placement(self.template, self.announced[2])
+        return self.announced[2] if self._rigid else None
 
     def completed(self, t: float, P: np.ndarray) -> bool:
         """The true positions P (n, 2) of ``names`` at time t occupy the last formation."""

@@ -141,10 +141,16 @@ def child_env() -> dict[str, str]:
     return env
 
 
-def popen(hosts: Hosts, host: str, argv: list[str]) -> subprocess.Popen:
-    """A Python program in ``host``'s namespace, in its own process group (kill by pid)."""
-    return subprocess.Popen(hosts.argv(host, [sys.executable, *argv]), cwd=str(REPO), env=child_env(),
-                            start_new_session=True, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+def popen(hosts: Hosts, host: str, argv: list[str], log=None) -> subprocess.Popen:
+    """A Python program in ``host``'s namespace, in its own process group (kill by pid);
+    its output goes to pipes, or to the file ``log``."""
+    out = subprocess.PIPE if log is None else open(log, "wb")
+    try:
+        return subprocess.Popen(hosts.argv(host, [sys.executable, *argv]), cwd=str(REPO), env=child_env(),
+                                start_new_session=True, stdout=out, stderr=subprocess.STDOUT if log else out)
+    finally:
+        if log is not None:
+            out.close()
 
 
 def start_router(hosts: Hosts, host: str, listen: str, *connect: str, lease_ms: int = 1000,

@@ -39,11 +39,12 @@ def run_across_hosts(tmp_path, procs, hosts, run_id: str, duration_s: float = 40
     procs.started.append(run)
     procs.started.append(start_router(hosts, hosts.b, endpoint(ADDR_B), endpoint(ADDR_A), lease_ms=LEASE_MS))
     wait_for_file(tmp_path / "scenario.json", run)
+    r2_log = tmp_path / "logs" / "r2.log"  # the run's own logs are beside it
     r2 = popen(hosts, hosts.b, ["-m", "agent", "--run-id", run_id, "--robot", "r2",
-                                "--config", str(tmp_path / "scenario.json"), "--connect", endpoint(ADDR_B)])
+                                "--config", str(tmp_path / "scenario.json"), "--connect", endpoint(ADDR_B)], log=r2_log)
     procs.started.append(r2)
-    assert run.wait(timeout=240) == 0, run.stderr.read().decode()[-3000:]
-    assert r2.wait(timeout=30) == 0, r2.stderr.read().decode()[-2000:]
+    assert run.wait(timeout=240) == 0, run.stderr.read().decode()[-3000:] + r2_log.read_text()[-2000:]
+    assert r2.wait(timeout=30) == 0, r2_log.read_text()[-2000:]
     return run, r2
 
 

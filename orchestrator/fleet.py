@@ -274,6 +274,9 @@ def run_fleet(scenario: Scenario, opts: RunOptions) -> RunOutcome:
                                      f"at sim t={recorder.sim_t:.2f} s; see {out / 'logs' / (c.name + '.log')}")
                 break
             if rc_sim is not None:
+                deadline = time.monotonic() + 10.0
+                while rc_sim == 0 and recorder.end is None and time.monotonic() < deadline:
+                    time.sleep(0.05)  # its end record is still on its way through a busy router
                 end = recorder.end
                 if rc_sim != 0 or end is None or not end.ok:
                     why = end.reason if end is not None else f"the simulator {_describe_exit(rc_sim)}"
@@ -315,9 +318,11 @@ def run_fleet(scenario: Scenario, opts: RunOptions) -> RunOutcome:
         progress.done()
         if ok:  # closing accounts may still be in flight through the router
             expected = {"sim", *scenario.robot_names}
-            deadline = time.monotonic() + 3.0
+            deadline, hard, seen = time.monotonic() + 3.0, time.monotonic() + 15.0, recorder.count
             while time.monotonic() < deadline and not expected <= set(recorder.stats):
                 time.sleep(0.02)
+                if recorder.count != seen:  # a busy router is still forwarding: keep waiting a while
+                    seen, deadline = recorder.count, min(hard, max(deadline, time.monotonic() + 1.0))
         else:
             time.sleep(0.3)
         pids = {c.name: c.proc.pid for c in children}

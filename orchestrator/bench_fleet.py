@@ -6,7 +6,10 @@ code on the in-memory bus, ``orchestrator/inprocess.py``) and prints the simulat
 each reached, the wall times, their real-time factors (simulated / wall) and the ratio of
 the two. ``startup s`` is the fleet's time from the call to the first tick (every robot's
 controller built, its liveliness token seen); ``fleet s`` is the whole fleet run, start-up
-and the reading of the log included. Runs of scenarios with ``run.until = "tasks_done"``
+and the reading of the log included. ``agent CPU ms/step`` (from the agents' closing
+accounts, p50 over agents, Zenoh's threads included), ``sim CPU s`` and ``inproc CPU
+us/step`` (this process's CPU per robot step) are CPU times: on a shared machine they move
+much less with the load than the wall times. Runs of scenarios with ``run.until = "tasks_done"``
 end when their work is done.
 """
 
@@ -44,6 +47,24 @@ def _startup_s(out: pathlib.Path, t_call: float) -> float | None:
     return None
 
 
+def _fleet_cpu(outcome, run_id: str) -> dict[str, Any]:
+    """CPU of the fleet's processes from their closing accounts: the agents' CPU per control
+    step from the start record on (Zenoh's threads included; p50 over agents) and the
+    simulator's whole CPU time. CPU time depends much less on the machine's load than
+    wall time, so before/after pairs compare on it (docs/performance.md, P12)."""
+    from copath.wire.keys import Keys  # noqa: PLC0415
+
+    from .metrics import trace_from_records  # noqa: PLC0415
+
+    if not outcome.records:
+        return {"agent_cpu_ms_per_step": None, "sim_cpu_s": None}
+    stats = trace_from_records(outcome.records, Keys(run_id)).stats
+    per_step = sorted(1e3 * s["cpu_run_s"] / s["steps"] for p, s in stats.items()
+                      if p != "sim" and s.get("cpu_run_s") is not None and s.get("steps"))
+    return {"agent_cpu_ms_per_step": round(per_step[len(per_step) // 2], 3) if per_step else None,
+            "sim_cpu_s": (stats.get("sim") or {}).get("cpu_s")}
+
+
 def measure(name: str, args: argparse.Namespace, root: pathlib.Path) -> dict[str, Any]:
     from . import api  # noqa: PLC0415
 
@@ -55,11 +76,13 @@ def measure(name: str, args: argparse.Namespace, root: pathlib.Path) -> dict[str
     if not args.no_inprocess:
         from .inprocess import run_scenario  # noqa: PLC0415
 
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         res = run_scenario(sc)
-        wall = time.perf_counter() - t0
+        wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+        steps = sum(1 for _, key, _ in res.records if key.endswith("/cmd"))
         row.update(inproc_sim_s=res.metrics["sim_time_s"], inproc_wall_s=round(wall, 3),
-                   inproc_rtf=round(res.metrics["sim_time_s"] / wall, 2))
+                   inproc_rtf=round(res.metrics["sim_time_s"] / wall, 2),
+                   inproc_cpu_us_per_step=round(1e6 * cpu / steps, 1) if steps else None)
     if not args.no_fleet:
         from .fleet import RunOptions, new_run_id, run_fleet  # noqa: PLC0415
 
@@ -71,6 +94,7 @@ def measure(name: str, args: argparse.Namespace, root: pathlib.Path) -> dict[str
         m = outcome.metrics or {}
         start = _startup_s(outcome.out_dir, t_call)
         sim_t = m.get("sim_time_s") or 0.0
+        row.update(_fleet_cpu(outcome, rid))
         row.update(ok=outcome.ok, reason=outcome.reason, fleet_sim_s=sim_t, fleet_wall_s=round(wall, 3),
                    startup_s=start, fleet_rtf=round(sim_t / wall, 2) if wall else None,
                    ticking_rtf=round(sim_t / (wall - start), 2) if start and wall > start else None)
@@ -86,7 +110,9 @@ def _table(result: dict[str, Any]) -> None:
         ("fleet_sim_s", "sim s", ".1f"), ("startup_s", "startup s", ".2f"), ("fleet_wall_s", "fleet s", ".2f"),
         ("fleet_rtf", "fleet rtf", ".1f"), ("ticking_rtf", "rtf ticking", ".1f"),
         ("inproc_sim_s", "inproc sim s", ".1f"), ("inproc_wall_s", "inproc s", ".2f"),
-        ("inproc_rtf", "inproc rtf", ".1f"), ("ratio", "inproc/fleet", ".1f")])
+        ("inproc_rtf", "inproc rtf", ".1f"), ("ratio", "inproc/fleet", ".1f"),
+        ("agent_cpu_ms_per_step", "agent CPU ms/step", ".3f"), ("sim_cpu_s", "sim CPU s", ".2f"),
+        ("inproc_cpu_us_per_step", "inproc CPU us/step", ".0f")])
     for r in result["runs"]:
         if not r["ok"]:
             print(f"{r['scenario']}: fleet run failed: {r.get('reason')}")

@@ -288,6 +288,8 @@ class RobotRuntime:
                 for r in m.to:
                     peers.append((self.keys.peer_direct(self.name, r), env))
                     self.sent[r] = self.sent.get(r, 0) + 1
+        if self.safety is not None and peers:  # committed plans: the filter keeps what it published
+            self.safety.published(now, pose, vel)
         self._last_cmd = cmd
         return StepOutput(
             Command(obs.k, float(now), cmd, solve_ms, dict(self.sent)),

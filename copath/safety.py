@@ -79,8 +79,8 @@ import numpy as np
 from .config import require
 from .models import OmniModel, UnicycleModel, integrate_body_velocity
 
-__all__ = ["SafetyConfig", "Neighbour", "SafetyResult", "SafetyFilter", "SafetyGuard", "max_speed",
-           "max_turn_rate", "prediction_bound", "predict_position"]
+__all__ = ["SafetyConfig", "Neighbour", "Tube", "SafetyResult", "SafetyFilter", "SafetyGuard", "max_speed",
+           "max_turn_rate", "prediction_bound", "predict_position", "commit_radius", "plan_velocity"]
 
 
 @dataclass(frozen=True)
@@ -130,7 +130,31 @@ class SafetyConfig:
     robots (they can sidestep; the rule would cost E5.1 its formation under faults);
     docs/safety.md."""
 
+    commit_accel_mps2: float | None = None
+    """Committed plans (docs/safety.md, "Committed plans"): every filtered robot promises to stay,
+    for ``commit_horizon_s`` after each envelope it publishes, within
+    ``commit_radius_m + commit_accel_mps2 tau^2 / 2`` of the arc predicted from that envelope's
+    position and velocity (tau the time since its stamp), and its neighbours bound it by that
+    tube instead of its acceleration limits while the envelope is younger than the horizon.
+    None: no commitment (the acceleration-limit bound only)."""
+    commit_radius_m: float = 0.02
+    """Committed plans: tube radius at the stamp [m] (chosen)."""
+    commit_speed_mps: float = 0.0
+    """Committed plans: growth of the tube radius with the plan's age [m/s] (the tube is
+    ``commit_radius_m + commit_speed_mps tau + commit_accel_mps2 tau^2 / 2``; chosen)."""
+    commit_horizon_s: float = 2.5
+    """Committed plans: how long each published plan is kept [s] (chosen: above the largest
+    age of information at 1 s of delay and 50 % loss in the measured runs)."""
+
     def __post_init__(self) -> None:
+        require(self.commit_accel_mps2 is None or (math.isfinite(self.commit_accel_mps2) and self.commit_accel_mps2 > 0),
+                "safety.commit_accel_mps2", self.commit_accel_mps2, "must be > 0 (or left out: no commitment)")
+        require(math.isfinite(self.commit_radius_m) and self.commit_radius_m > 0, "safety.commit_radius_m",
+                self.commit_radius_m, "must be > 0")
+        require(math.isfinite(self.commit_speed_mps) and self.commit_speed_mps >= 0, "safety.commit_speed_mps",
+                self.commit_speed_mps, "must be >= 0")
+        require(math.isfinite(self.commit_horizon_s) and self.commit_horizon_s > 0, "safety.commit_horizon_s",
+                self.commit_horizon_s, "must be > 0")
         require(self.gamma is None or self.gamma > 0, "safety.gamma", self.gamma, "must be > 0")
         require(self.margin_m >= 0, "safety.margin_m", self.margin_m, "must be >= 0")
         require(self.speed_max_mps is None or self.speed_max_mps > 0, "safety.speed_max_mps",
@@ -166,6 +190,41 @@ class Neighbour:
     predicted: bool = False
     """True when ``position`` is predicted from the velocity it sent under its enforced
     acceleration limit (``spread`` the guaranteed error of that prediction)."""
+    committed: tuple[float, float, float, float] | None = None
+    """Committed plans: the neighbour keeps within its tube, the disc (``position``, ``spread``)
+    moving at (vx, vy) [m/s] and growing at the rate [m/s], and it accelerates by at most the
+    last entry [m/s^2] relative to it; None when it has made no such promise for this age."""
+
+
+@dataclass(frozen=True)
+class Tube:
+    """One plan this robot published and must still honour (committed plans): at this instant it
+    must be within ``radius`` of ``centre``, a disc that moves at ``velocity`` and grows at
+    ``growth``."""
+
+    centre: tuple[float, float]
+    """The plan's point now [m] (the arc predicted from the published position and velocity)."""
+    velocity: tuple[float, float]
+    """The plan point's velocity now [m/s]."""
+    radius: float
+    """Tube radius now [m]: commit_radius_m + commit_accel_mps2 tau^2 / 2."""
+    growth: float
+    """Rate of the radius now [m/s]: commit_accel_mps2 tau."""
+
+
+def commit_radius(config: SafetyConfig, tau: float) -> float:
+    """Radius of the committed tube ``tau`` after a plan's stamp [m] (docs/safety.md,
+    "Committed plans")."""
+    tau = max(tau, 0.0)
+    return config.commit_radius_m + config.commit_speed_mps * tau + 0.5 * config.commit_accel_mps2 * tau**2
+
+
+def plan_velocity(velocity, tau: float) -> tuple[float, float]:
+    """Velocity of the arc of :func:`predict_position` ``tau`` after the stamp [m/s]: the sent
+    world velocity turned by thetadot tau."""
+    vx, vy, w = (float(c) for c in velocity)
+    c, s = math.cos(w * tau), math.sin(w * tau)
+    return c * vx - s * vy, s * vx + c * vy
 
 
 @dataclass(frozen=True)
@@ -246,6 +305,18 @@ LOOKAHEAD_RECOVERY = 0.25
 """A look-ahead point inside its inflated disc (h_z < 0) is pushed out at this fraction of the
 rate gamma / 2 |h_z| (chosen: gentle, so stale, jumping positions do not make it chatter)."""
 
+TUBE_SLACK_SHARE = 0.1
+"""Weight of the committed tube's slack relative to ``slack_weight`` (chosen: the robot gives up
+its own promise before a centre row, which carries the collision guarantee)."""
+
+TUBE_MARGIN_M = 0.005
+"""The robot keeps this far inside its committed tubes [m] (chosen: the applied velocity ramps
+within a period, at most a_max dt^2 / 2 = 1.5 mm at 0.3 m/s^2 and 0.1 s)."""
+
+HARD, LOOKAHEAD, TUBE = 0, 1, 2
+"""Slack of a row: the centre rows', the look-ahead rows' or the committed tube's."""
+_NS = 3  # slack variables
+
 UNICYCLE_TURN_RAD = 1.2
 """Default turn of the deadlock rule for unicycles [rad] (chosen, docs/safety.md)."""
 
@@ -323,21 +394,23 @@ class SafetyFilter:
             self._c = np.array([self._cap or 0.0])
         # constant parts of the QP: Hessian, limit and cap rows, slack bound
         m = self.m
-        # variables (u, sigma, sigma_z): the centre barriers' slack and the look-ahead rows' own,
-        # cheaper one (those rows steer; the centre rows keep robots apart)
-        self._H = np.zeros((m + 2, m + 2))
+        # variables (u, sigma, sigma_z, sigma_c): the centre barriers' slack, the look-ahead rows'
+        # own, cheaper one (those rows steer; the centre rows keep robots apart) and the committed
+        # tube's (the robot's own promise, given up before any centre row)
+        self._H = np.zeros((m + _NS, m + _NS))
         self._H[:m, :m] = 2 * self._W
         self._H[m, m] = 2 * config.slack_weight
         self._H[m + 1, m + 1] = 2 * config.slack_weight * LOOKAHEAD_SLACK_SHARE
+        self._H[m + 2, m + 2] = 2 * config.slack_weight * TUBE_SLACK_SHARE
         rows_a, rows_l = [self._L], [self._lim]
         if self._cap is not None:
             rows_a.append(self._C)
             rows_l.append(self._c)
-        self._fixed_a = np.hstack([np.vstack(rows_a), np.zeros((sum(len(r) for r in rows_l), 2))])
+        self._fixed_a = np.hstack([np.vstack(rows_a), np.zeros((sum(len(r) for r in rows_l), _NS))])
         self._fixed_u = np.concatenate(rows_l)
         self._fixed_l = -self._fixed_u
-        self._lbx = np.r_[np.full(m, -np.inf), 0.0, 0.0]
-        self._ubx = np.full(m + 2, np.inf)
+        self._lbx = np.r_[np.full(m, -np.inf), np.zeros(_NS)]
+        self._ubx = np.full(m + _NS, np.inf)
         self._qp = None
         self._rows = 0
         if capacity:
@@ -432,8 +505,8 @@ class SafetyFilter:
         return float(np.hypot(u[0], u[1])) if self.omni else abs(float(u[0]))
 
     # -- the filter --------------------------------------------------------------------
-    def constraints(self, pose, neighbours: Sequence[Neighbour] = (), ranges=None, angles=None
-                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+    def constraints(self, pose, neighbours: Sequence[Neighbour] = (), ranges=None, angles=None,
+                    tubes: Sequence[Tube] = ()) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
         """Every barrier as a row on the command: ``A u >= rhs``, which rows are soft (look-ahead
         rows), and the smallest centre barrier value.
 
@@ -456,6 +529,22 @@ class SafetyFilter:
             a_dt = 0.5 * self.model.a_max * self.dt
             stop = np.sqrt(a_dt**2 + self.model.a_max * np.maximum(h, 0.0)) - a_dt
             rhs = -np.minimum(gain * np.maximum(h, 0.0), stop)
+        # committed neighbours (docs/safety.md, "committed plans"): the neighbour stays in its
+        # tube, a disc moving at c' and growing at e', so this robot alone keeps out of it, with
+        # the whole gap: n^T (pdot - c') - e' >= -rate(h), rate = gamma h, or the speed from which
+        # it stops relative to the disc within h (deceleration a_max less the disc's own)
+        heard = [nb for nb in neighbours if nb.age <= self.config.max_age_s]
+        for k, nb in enumerate(heard):
+            if nb.committed is None:
+                continue
+            vx, vy, grow, acc = nb.committed
+            hk = max(float(h[k]), 0.0)
+            rate = self.gamma * hk
+            if self.config.braking and self.model.a_max is not None:
+                a_rel = max(self.model.a_max - acc, 0.1 * self.model.a_max)
+                a_dt = 0.5 * a_rel * self.dt
+                rate = min(rate, math.sqrt(a_dt**2 + 2.0 * a_rel * hk) - a_dt)
+            rhs[k] = float(n[k] @ np.array([vx, vy])) + grow - rate
         h_min = float(h.min()) if len(h) else math.inf
         # a neighbour heard `spread` ago lies anywhere in a disc of that radius, so the true
         # normal is within |n - n_hat| <= kappa of the heard one and the true closing rate is
@@ -471,7 +560,7 @@ class SafetyFilter:
             extra = [A[moving] - (kappa[moving] / _COS_DIR)[:, None] * c[None, :] for c in _DIRS]
             A = np.vstack([A[~moving], *extra])
             rhs = np.r_[rhs[~moving], np.tile(rhs[moving], len(_DIRS))]
-        soft = np.zeros(len(rhs), dtype=bool)
+        soft = np.full(len(rhs), HARD)
         if self.lookahead:
             # look-ahead rows are not clamped: a look-ahead point inside its inflated disc is
             # pushed back out (which reopens the gaps a robot needs to steer round the others);
@@ -479,8 +568,36 @@ class SafetyFilter:
             nz, hz = self.lookahead_barriers(pose, neighbours)
             A = np.vstack([A, nz @ self.lookahead_map(th)])
             rhs = np.r_[rhs, -0.5 * self.gamma * np.where(hz > 0, hz, LOOKAHEAD_RECOVERY * hz)]
-            soft = np.r_[soft, np.ones(len(hz), dtype=bool)]
+            soft = np.r_[soft, np.full(len(hz), LOOKAHEAD)]
+        if tubes:
+            At, rt = self.tube_rows(pose, tubes)
+            A, rhs, soft = np.vstack([A, At]), np.r_[rhs, rt], np.r_[soft, np.full(len(rt), TUBE)]
         return A, rhs, soft, h_min
+
+    def tube_rows(self, pose, tubes: Sequence[Tube]) -> tuple[np.ndarray, np.ndarray]:
+        """Rows ``A u >= rhs`` that keep the robot in every tube it committed to (committed plans).
+
+        With d = p - c (c the plan's point), g = radius - |d| the room left and m = d / |d|,
+        g' = growth - m^T (pdot - c'), and the row asks g' >= -rate(g): rate = gamma g (first
+        order), capped by the braking speed of the centre rows for a robot with ``a_max`` (it
+        reaches a command only gradually). A unicycle shapes its look-ahead point's velocity
+        (steering moves it sideways; the centre moves along the heading only)."""
+        q = np.array([float(pose[0]), float(pose[1])])
+        th = float(pose[2])
+        vmap = self.lookahead_map(th) if self.lookahead else self.centre_velocity_map(th)
+        c = np.asarray([t.centre for t in tubes], dtype=float)
+        d = q[None, :] - c
+        dist = np.linalg.norm(d, axis=1)
+        mvec = d / np.maximum(dist, 1e-9)[:, None]
+        g = np.asarray([t.radius for t in tubes]) - dist
+        rate = self.gamma * g
+        if self.config.braking and self.model.a_max is not None:
+            a_dt = 0.5 * self.model.a_max * self.dt
+            stop = np.sqrt(a_dt**2 + self.model.a_max * np.maximum(g, 0.0)) - a_dt
+            rate = np.where(g > 0, np.minimum(rate, stop), rate)
+        cvel = np.asarray([t.velocity for t in tubes], dtype=float)
+        bound = np.einsum("ij,ij->i", mvec, cvel) + np.asarray([t.growth for t in tubes]) + rate
+        return -(mvec @ vmap), -bound
 
     def steered_velocity(self, u, theta: float) -> np.ndarray:
         """Velocity of the point the filter steers: the look-ahead point of a unicycle (l > 0),
@@ -505,7 +622,8 @@ class SafetyFilter:
             return np.array([c * ref[0] + s * ref[1], -s * ref[0] + c * ref[1], float(u_nom[2])])
         return np.linalg.solve(self.lookahead_map(theta), ref)
 
-    def filter(self, pose, nominal, neighbours: Sequence[Neighbour] = (), ranges=None, angles=None) -> SafetyResult:
+    def filter(self, pose, nominal, neighbours: Sequence[Neighbour] = (), ranges=None, angles=None,
+               tubes: Sequence[Tube] = ()) -> SafetyResult:
         """Minimally modify ``nominal`` so every barrier holds; return it unchanged if they do.
 
         When the solution slows the robot (its steered point's speed is a fraction r < 1 of the
@@ -514,7 +632,7 @@ class SafetyFilter:
         that breaks symmetric deadlocks, barely touches a robot that is only slowed a little,
         and keeps lockstep runs reproducible."""
         u_nom = np.asarray(nominal, dtype=float).reshape(self.m)
-        A, rhs, soft, h_min = self.constraints(pose, neighbours, ranges, angles)
+        A, rhs, soft, h_min = self.constraints(pose, neighbours, ranges, angles, tubes)
         u_sat, _ = self.model.saturate(u_nom)  # what the robot would do with the nominal command
         cap_ok = self._cap is None or self.centre_speed(u_sat) <= self._cap * (1 + 1e-9)
         if cap_ok and np.all(A @ u_sat >= rhs - 1e-12):
@@ -524,7 +642,7 @@ class SafetyFilter:
         biased = False
         speed_nom = float(np.hypot(*self.steered_velocity(u_sat, th)))
         ratio = float(np.hypot(*self.steered_velocity(u, th))) / speed_nom if speed_nom > 1e-9 else 1.0
-        blocked = bool(np.any(A @ u_sat < rhs - 1e-12))  # a barrier, not only the speed cap
+        blocked = bool(np.any((A @ u_sat < rhs - 1e-12) & (soft != TUBE)))  # a barrier, not the cap or the tube
         if ok and blocked and ratio < SLOWED:
             ref = self.biased_reference(u_sat, th, self.turn)
             if ref is not None:
@@ -544,7 +662,7 @@ class SafetyFilter:
             import casadi as ca  # noqa: PLC0415  (only robots with a filter load CasADi)
 
             self._rows = max(cap, 2 * self._rows)
-            nv = self.m + 2
+            nv = self.m + _NS
             rows = len(self._fixed_l) + self._rows
             self._qp = ca.conic(f"safety_qp_{self._rows}", "daqp",
                                 {"h": ca.Sparsity.dense(nv, nv), "a": ca.Sparsity.dense(rows, nv)},
@@ -553,15 +671,17 @@ class SafetyFilter:
 
     def _solve(self, A: np.ndarray, rhs: np.ndarray, u_ref: np.ndarray, soft: np.ndarray | None = None
                ) -> tuple[np.ndarray, float, bool]:
-        """QP towards ``u_ref``; rows flagged in ``soft`` (look-ahead rows) take the cheaper slack."""
+        """QP towards ``u_ref``; ``soft`` gives each row's slack: ``HARD`` (centre rows, range
+        readings), ``LOOKAHEAD`` (the cheaper slack of the look-ahead rows) or ``TUBE`` (the
+        committed tube's)."""
         k, m = A.shape
         qp = self._solver(k)
         pad = self._rows - k
-        soft = np.zeros(k, dtype=bool) if soft is None else soft
+        soft = np.zeros(k, dtype=int) if soft is None else np.asarray(soft, dtype=int)
         w = self.config.slack_weight
-        g = np.r_[-2 * self._W @ u_ref, w, w * LOOKAHEAD_SLACK_SHARE]
-        slack_cols = np.stack([~soft, soft], axis=1).astype(float)
-        a = np.vstack([self._fixed_a, np.hstack([A, slack_cols]), np.zeros((pad, m + 2))])
+        g = np.r_[-2 * self._W @ u_ref, w, w * LOOKAHEAD_SLACK_SHARE, w * TUBE_SLACK_SHARE]
+        slack_cols = (soft[:, None] == np.arange(_NS)[None, :]).astype(float)
+        a = np.vstack([self._fixed_a, np.hstack([A, slack_cols]), np.zeros((pad, m + _NS))])
         lba = np.r_[self._fixed_l, rhs, np.full(pad, -np.inf)]
         uba = np.r_[self._fixed_u, np.full(k + pad, np.inf)]
         sol = qp(h=self._H, g=g, a=a, lba=lba, uba=uba, lbx=self._lbx, ubx=self._ubx)
@@ -598,6 +718,10 @@ class SafetyGuard:
         omni = isinstance(own, OmniModel)
         per_robot = len(_DIRS) if omni else 2 + int(config.lookahead_m > 0)
         rows = per_robot * (len(models) - 1) + (sensor_count if config.use_ranges else 0) * (1 if omni else 2)
+        self._config = config
+        self._commit = config.commit_accel_mps2 is not None
+        if self._commit:  # one tube row per plan still kept
+            rows += int(math.ceil(config.commit_horizon_s / dt)) + 1
         self.filter = SafetyFilter(config, own, dt, capacity=rows)
         cap = config.speed_max_mps
         self._bounds = {n: (m.radius, max_speed(m) if cap is None else min(cap, max_speed(m)),
@@ -620,6 +744,39 @@ class SafetyGuard:
         """Instants at which a barrier could not be met within the limits (slack > 0)."""
         self.bias_steps = 0
         """Instants at which the deadlock rule's right-hand bias shaped the command."""
+        self._plans: list[tuple[float, float, float, tuple[float, float, float]]] = []
+        """Plans this robot published and still keeps: (stamp, x, y, velocity)."""
+        self.commit_breaks = 0
+        """Control instants at which the robot was outside a tube it committed to (the guarantee's
+        premise broken; docs/safety.md, "Committed plans")."""
+        self.commit_excess_max = 0.0
+        """Largest distance outside a committed tube [m]."""
+
+    def published(self, stamp: float, position, velocity) -> None:
+        """Record a plan this robot published (the position and world velocity of its envelopes
+        stamped ``stamp``): with committed plans it keeps within the tube around it for
+        ``commit_horizon_s``."""
+        if not self._commit or velocity is None:
+            return
+        if self._plans and self._plans[-1][0] == float(stamp):
+            return
+        self._plans.append((float(stamp), float(position[0]), float(position[1]),
+                            (float(velocity[0]), float(velocity[1]), float(velocity[2]))))
+
+    def tubes(self, now: float) -> list[Tube]:
+        """The tubes this robot must stay in at ``now`` (plans younger than the horizon)."""
+        if not self._commit:
+            return []
+        cfg = self._config
+        self._plans = [p for p in self._plans if now - p[0] < cfg.commit_horizon_s - 1e-9]
+        out = []
+        for stamp, x, y, vel in self._plans:
+            tau = now - stamp
+            # the robot aims at an inner tube: the applied velocity ramps within a period, which
+            # the rows on the command do not see
+            out.append(Tube(predict_position((x, y), vel, tau), plan_velocity(vel, tau),
+                            commit_radius(cfg, tau) - TUBE_MARGIN_M, cfg.commit_speed_mps + cfg.commit_accel_mps2 * tau))
+        return out
 
     def hear(self, sender: str, position, stamp: float, velocity=None) -> None:
         """Remember the newest position (and world velocity (xdot, ydot, thetadot), when the
@@ -645,7 +802,22 @@ class SafetyGuard:
             prev = self._before.get(sender)
             a_max, alpha_max, w_bound = self._limits[sender]
             vel = self._vel.get(sender)
-            if a_max is not None and vel is not None:
+            if self._commit and vel is not None and age < self._config.commit_horizon_s:
+                # the sender keeps within its committed tube around the arc it published
+                # (docs/safety.md, "committed plans"); with an enforced limit, the tighter of the two
+                spread = commit_radius(self._config, age)
+                if a_max is not None:
+                    spread = min(spread, prediction_bound(age, math.hypot(vel[0], vel[1]), a_max, alpha_max,
+                                                          w_bound, self._dt))
+                if spread < s * age:
+                    cfg = self._config
+                    cv = plan_velocity(vel, age)
+                    grow = cfg.commit_speed_mps + cfg.commit_accel_mps2 * age
+                    # the disc's own acceleration: the arc's turn and the radius's growth
+                    acc = math.hypot(vel[0], vel[1]) * abs(vel[2]) + cfg.commit_accel_mps2
+                    nb = Neighbour(predict_position((x, y), vel, age), age, r, s, spread, look, True,
+                                   (cv[0], cv[1], grow, acc))
+            elif a_max is not None and vel is not None:
                 # the sender's enforced acceleration limit and its sent velocity: a guaranteed,
                 # tighter disc around the predicted arc (docs/safety.md, "acceleration limits")
                 speed = math.hypot(vel[0], vel[1])
@@ -665,7 +837,16 @@ class SafetyGuard:
 
     def apply(self, pose, command, now: float, ranges=None, angles=None) -> SafetyResult:
         """Filter one command and record the intervention."""
-        res = self.filter.filter(pose, command, self.neighbours(now), ranges, angles)
+        tubes = self.tubes(now)
+        if tubes:
+            q = np.array([float(pose[0]), float(pose[1])])
+            gap = np.array([t.radius + TUBE_MARGIN_M - float(np.hypot(*(q - t.centre))) for t in tubes])
+            if gap.min() < 0:
+                self.commit_breaks += 1
+                self.commit_excess_max = max(self.commit_excess_max, float(-gap.min()))
+            # a tube already left is broken (counted): pulling back into it would not undo that
+            tubes = [t for t, g in zip(tubes, gap) if g >= 0]
+        res = self.filter.filter(pose, command, self.neighbours(now), ranges, angles, tubes)
         if res.active:
             self.interventions += 1
             self.change_max = max(self.change_max, res.change)
@@ -678,4 +859,6 @@ class SafetyGuard:
         """Closing counters (``safety_*``) for the robot's stats record."""
         return {"safety_interventions": self.interventions, "safety_change_max": round(self.change_max, 6),
                 "safety_qp_failures": self.qp_failures, "safety_slack_steps": self.slack_steps,
-                "safety_bias_steps": self.bias_steps}
+                "safety_bias_steps": self.bias_steps,
+                **({"safety_commit_breaks": self.commit_breaks,
+                    "safety_commit_excess_max": round(self.commit_excess_max, 6)} if self._commit else {})}

@@ -178,8 +178,9 @@ class AgentNode:
             return
         self._sim_gone_at = time.monotonic()
         if self.liveliness_grace_s > 0:
-            logger.warning("the simulator's liveliness token disappeared; waiting %.1f s for it",
-                           self.liveliness_grace_s)
+            if self._end_at is None:  # after the end record its exit is expected
+                logger.warning("the simulator's liveliness token disappeared; waiting %.1f s for it",
+                               self.liveliness_grace_s)
             return
         self._sim_went_away()
 
@@ -383,6 +384,10 @@ def _peak_rss_mb() -> float | None:
     return None
 
 
+PRELOADED: dict[str, object] = {}
+"""Scenarios already parsed by the process that forked this one (``agent/zygote.py``), by path."""
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="copath agent", description="Run one robot of a copath run.")
     p.add_argument("--run-id", required=True)
@@ -394,7 +399,7 @@ def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO,
                         format=f"%(asctime)s {args.robot} %(levelname)s %(message)s")
     try:
-        scenario = load_scenario(args.config)
+        scenario = PRELOADED.get(args.config) or load_scenario(args.config)
         keys = Keys(args.run_id)
         scenario.robot(args.robot)
         conf = dataclasses.replace(session_config_from_args(args), lease_ms=round(1e3 * scenario.run.lease_s))

@@ -45,6 +45,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--lease", type=float, default=5.0, metavar="S",
                         help="run.lease_s, the Zenoh transport lease [5]: with 1 s, a hundred processes on two "
                              "cores miss leases and their transports are reset (docs/performance.md, P10)")
+    parser.add_argument("--fork-server", action="store_true",
+                        help="start the agents by forking a pre-imported launcher (agent/zygote.py)")
     parser.add_argument("--out", help="keep the runs here (default: a temporary directory, removed)")
     parser.add_argument("--json", action="store_true", help="print JSON instead of the table")
 
@@ -90,7 +92,8 @@ def _measure(n: int, args: argparse.Namespace, root: pathlib.Path) -> dict[str, 
     rid = new_run_id(f"bench-scale-{n}")
     t_call = time.time()
     t0 = time.perf_counter()
-    outcome = run_fleet(sc, RunOptions(out_dir=root / rid, run_id=rid, progress=False, start_timeout_s=600.0))
+    outcome = run_fleet(sc, RunOptions(out_dir=root / rid, run_id=rid, progress=False, start_timeout_s=600.0,
+                                            fork_server=args.fork_server))
     wall = time.perf_counter() - t0
     m = outcome.metrics or {}
     fleet = m.get("fleet") or {}

@@ -69,6 +69,9 @@ class RunOptions:
     secure: bool | None = None
     """Per-run credentials and access control on the router (orchestrator/security.py);
     None: the scenario's ``run.secure``."""
+    fork_server: bool = False
+    """Start the agents by forking a pre-imported launcher (``agent/zygote.py``) instead of
+    one ``python -m agent`` each: the imports are paid once (docs/performance.md, P10)."""
 
 
 @dataclass
@@ -98,6 +101,84 @@ def _spawn(name: str, argv: list[str], log_path: pathlib.Path, cwd: pathlib.Path
     proc = subprocess.Popen(argv, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
                             start_new_session=True, env=env, cwd=str(cwd))
     return _Child(name, proc, log)
+
+
+class _ForkedProc:
+    """The part of ``subprocess.Popen`` the orchestrator uses, for a robot forked by the
+    zygote and re-parented to this process (a child subreaper)."""
+
+    def __init__(self, pid: int) -> None:
+        self.pid = pid
+        self.returncode: int | None = None
+
+    def poll(self) -> int | None:
+        if self.returncode is None:
+            try:
+                pid, status = os.waitpid(self.pid, os.WNOHANG)
+            except ChildProcessError:  # not ours (no subreaper): gone when /proc forgets it
+                if not os.path.exists(f"/proc/{self.pid}"):
+                    self.returncode = -signal.SIGKILL
+                return self.returncode
+            if pid == self.pid:
+                self.returncode = os.waitstatus_to_exitcode(status)
+        return self.returncode
+
+    def wait(self, timeout: float | None = None) -> int:
+        deadline = None if timeout is None else time.monotonic() + timeout
+        while self.poll() is None:
+            if deadline is not None and time.monotonic() > deadline:
+                raise subprocess.TimeoutExpired(f"agent pid {self.pid}", timeout)
+            time.sleep(0.01)
+        return self.returncode
+
+
+class _Zygote:
+    """``python -m agent.zygote``: imports once, forks one process per robot (P10)."""
+
+    def __init__(self, scen_path: pathlib.Path, cwd: pathlib.Path) -> None:
+        from agent.zygote import TITLE_ROOM, set_subreaper  # noqa: PLC0415
+
+        self.subreaper = set_subreaper()
+        env = dict(os.environ)
+        env["PYTHONPATH"] = os.pathsep.join(p for p in (str(REPO_ROOT), *import_path_dirs(), env.get("PYTHONPATH", "")) if p)
+        env.setdefault("PYTHONUNBUFFERED", "1")
+        self.log = (cwd / "zygote.log").open("wb")
+        self.proc = subprocess.Popen([sys.executable, "-m", "agent.zygote", "--config", str(scen_path.resolve()),
+                                      "--title-room=" + "x" * TITLE_ROOM], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                                     stderr=self.log, start_new_session=True, env=env, cwd=str(cwd))
+
+    def spawn(self, name: str, argv: list[str], log_path: pathlib.Path) -> _Child | None:
+        """The robot's process, or None when the zygote cannot (the caller spawns it itself)."""
+        if not self.subreaper or self.proc.poll() is not None:
+            return None
+        try:
+            self.proc.stdin.write((json.dumps({"name": name, "argv": argv, "log": str(log_path)}) + "\n").encode())
+            self.proc.stdin.flush()
+            while True:
+                line = self.proc.stdout.readline()
+                if not line:
+                    return None
+                reply = json.loads(line)
+                if reply.get("name") == name:
+                    break
+        except (OSError, ValueError):
+            return None
+        if "pid" not in reply:
+            logger.warning("the zygote could not start robot %s: %s", name, reply.get("error"))
+            return None
+        return _Child(name, _ForkedProc(int(reply["pid"])), open(os.devnull, "wb"))
+
+    def close(self) -> None:
+        try:
+            self.proc.stdin.close()
+            self.proc.wait(timeout=3)
+        except (OSError, subprocess.TimeoutExpired):
+            try:
+                os.killpg(self.proc.pid, signal.SIGKILL)
+            except ProcessLookupError:
+                pass
+            self.proc.wait(timeout=5)
+        self.log.close()
 
 
 def _stop(children: list[_Child], grace_s: float = 3.0) -> None:
@@ -220,10 +301,14 @@ def run_fleet(scenario: Scenario, opts: RunOptions) -> RunOutcome:
     gone: set[str] = set()  # robots lost under "continue"
     max_restarts = 3
 
+    zygote = _Zygote(scen_path, out / "logs") if opts.fork_server else None
+
     def _agent(name: str) -> _Child:
         spawned_at[name] = time.monotonic()
         log = out / "logs" / (f"{name}.log" if not restarts[name] else f"{name}.restart{restarts[name]}.log")
-        return _spawn(name, [sys.executable, "-m", "agent", "--robot", name, *common, *_auth(name)], log, out / "logs")
+        argv = ["--robot", name, *common, *_auth(name)]
+        child = zygote.spawn(name, argv, log) if zygote is not None else None
+        return child or _spawn(name, [sys.executable, "-m", "agent", *argv], log, out / "logs")
 
     try:
         children.append(_spawn("sim", [sys.executable, "-m", "sim", *common, *_auth("sim"), "--start-timeout",
@@ -327,6 +412,8 @@ def run_fleet(scenario: Scenario, opts: RunOptions) -> RunOutcome:
             time.sleep(0.3)
         pids = {c.name: c.proc.pid for c in children}
         _stop(children)
+        if zygote is not None:
+            zygote.close()
         router.close()
         recorder.add_process_logs(out / "logs")
         recorder.finish({"outcome": {"ok": str(ok), "reason": reason}})

@@ -318,7 +318,7 @@ def netns_drop(case: Case, procs: Procs) -> None:
         try:
             run_across_hosts(case.out, procs, hosts, case.run_id, duration_s=float(DURATION))
         finally:
-            procs.cleanup()
+            netns.stop_all(procs)
         case.note = f"{hosts.dropped(hosts.a)} packets dropped on the link; r2 on host B"
 
 
@@ -328,7 +328,7 @@ def router_killed(policy: str) -> Callable[[Case, Procs], None]:
             try:
                 res = kill_remote_router(case.out, procs, hosts, policy, case.run_id, float(DURATION))
             finally:
-                procs.cleanup()
+                netns.stop_all(procs)
         case.note = f"r2, r3 behind host B's router; detection {res['detection_s']:.2f} s (kill to the loss record)"
         case.fixed_detection, case.detect = res["detection_s"], "lost"
     return run
@@ -377,7 +377,7 @@ def run_case(name: str, tmp: pathlib.Path) -> dict[str, Any]:
     except Exception as exc:  # a case that could not be run is a row that says so
         return {"fault": label, "skipped": f"{type(exc).__name__}: {exc}"[:300]}
     finally:
-        procs.cleanup()
+        netns.stop_all(procs)
     row = summarise(label, case)
     if case.fixed_detection is not None:
         row["detection_s"], row["detected_by"] = case.fixed_detection, case.detect

@@ -11,6 +11,7 @@ from __future__ import annotations
 import contextlib
 import os
 import shutil
+import signal
 import subprocess
 import sys
 import time
@@ -172,3 +173,21 @@ def wait_for_file(path, proc: subprocess.Popen, timeout_s: float = 120.0) -> Non
         if proc.poll() is not None or time.monotonic() > deadline:
             raise AssertionError(f"{path.name} did not appear: {proc.stderr.read().decode()[-2000:]}")
         time.sleep(0.05)
+
+
+def stop_all(procs) -> None:
+    """Stop every process a test started: SIGTERM to each group first (an orchestrator then
+    stops its own children and finishes its log), SIGKILL to what is left (``procs.cleanup``)."""
+    running = [p for p in procs.started if p.poll() is None]
+    for p in running:
+        try:
+            os.killpg(p.pid, signal.SIGTERM)
+        except ProcessLookupError:
+            pass
+    deadline = time.monotonic() + 15.0
+    for p in running:
+        try:
+            p.wait(timeout=max(0.1, deadline - time.monotonic()))
+        except subprocess.TimeoutExpired:
+            pass
+    procs.cleanup()

@@ -19,7 +19,7 @@ from copath.scenario import load_scenario
 from orchestrator.mcaplog import read_log
 from tests.conftest import config
 
-from .hosts import ADDR_A, ADDR_B, endpoint, popen, start_router, two_hosts, wait_for_file, why_not
+from .hosts import ADDR_A, ADDR_B, endpoint, popen, start_router, stop_all, two_hosts, wait_for_file, why_not
 
 pytestmark = [pytest.mark.integration, pytest.mark.timeout(300)]
 
@@ -70,7 +70,7 @@ def test_a_remote_router_dies_and_its_robots_are_lost(tmp_path, procs, policy):
         try:
             res = kill_remote_router(tmp_path, procs, hosts, policy)
         finally:
-            procs.cleanup()  # before the namespaces go
+            stop_all(procs)  # before the namespaces go
     m, log = res["metrics"], res["log"]
     # continue: held still at once; fail: lost once the token stayed away for the grace
     grace = load_scenario(tmp_path / "scenario.json").run.liveliness_grace_s if policy == "fail" else 0.0

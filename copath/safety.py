@@ -58,6 +58,17 @@ numbers. A nominal command that already satisfies every row (after the model's o
 saturation) is returned unchanged: the filter is inactive, and bit for bit invisible, away
 from other robots.
 
+Committed plans (``commit_accel_mps2``; docs/safety.md, "Committed plans"): each robot
+promises to stay, for ``commit_horizon_s`` after every envelope it publishes, within
+``e(tau) = commit_radius_m + commit_speed_mps tau + commit_accel_mps2 tau^2 / 2`` of the arc
+that envelope's position and velocity predict, and keeps every such promise a neighbour may
+still hold (soft rows, :meth:`SafetyFilter.tube_rows`; leaving a tube is counted). A
+neighbour heard ``tau`` ago is then a disc of radius e(tau) moving along its arc, which the
+robot keeps out of by itself, with the whole gap: ``n^T (pdot - c') - e' >= -gamma h``
+(braking-aware for ``a_max``). One robot's rows keep a pair apart while the other keeps its
+promise, as the assumed trajectories of the DMPC (Sec. 5.4) and the compatibility constraints
+of Dunbar and Murray (Automatica 42(4), 2006) let neighbours plan against each other.
+
 Deadlock rule (after Wang, Ames and Egerstedt 2017, Sec. VI): when a barrier slows the
 robot, the QP is solved once more with ``u_ref`` the nominal velocity of the steered point
 turned to the right by ``deadlock_turn_rad``; fixed and decentralised, so symmetric jams

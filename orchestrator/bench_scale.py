@@ -45,8 +45,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--lease", type=float, default=5.0, metavar="S",
                         help="run.lease_s, the Zenoh transport lease [5]: with 1 s, a hundred processes on two "
                              "cores miss leases and their transports are reset (docs/performance.md, P10)")
-    parser.add_argument("--fork-server", action="store_true",
-                        help="start the agents by forking a pre-imported launcher (agent/zygote.py)")
+    parser.add_argument("--fork-server", action=argparse.BooleanOptionalAction, default=True,
+                        help="start the agents by forking a pre-imported launcher (agent/zygote.py) [on]")
     parser.add_argument("--out", help="keep the runs here (default: a temporary directory, removed)")
     parser.add_argument("--json", action="store_true", help="print JSON instead of the table")
 

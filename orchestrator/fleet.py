@@ -69,9 +69,10 @@ class RunOptions:
     secure: bool | None = None
     """Per-run credentials and access control on the router (orchestrator/security.py);
     None: the scenario's ``run.secure``."""
-    fork_server: bool = False
+    fork_server: bool = field(default_factory=lambda: os.environ.get("COPATH_FORK_SERVER", "1") != "0")
     """Start the agents by forking a pre-imported launcher (``agent/zygote.py``) instead of
-    one ``python -m agent`` each: the imports are paid once (docs/performance.md, P10)."""
+    one ``python -m agent`` each: the imports are paid once (docs/performance.md, P10).
+    ``COPATH_FORK_SERVER=0`` in the environment turns it off."""
 
 
 @dataclass
@@ -307,7 +308,8 @@ def run_fleet(scenario: Scenario, opts: RunOptions) -> RunOutcome:
         spawned_at[name] = time.monotonic()
         log = out / "logs" / (f"{name}.log" if not restarts[name] else f"{name}.restart{restarts[name]}.log")
         argv = ["--robot", name, *common, *_auth(name)]
-        child = zygote.spawn(name, argv, log) if zygote is not None else None
+        # a restart (run.on_robot_failure = "restart") is a fresh process, as a robot rebooting would be
+        child = zygote.spawn(name, argv, log) if zygote is not None and not restarts[name] else None
         return child or _spawn(name, [sys.executable, "-m", "agent", *argv], log, out / "logs")
 
     try:

@@ -217,3 +217,28 @@ def test_six_robots_coordinate_at_one_second_delay_and_half_lost_with_committed_
     assert _interventions(m) > 0
     assert m["fleet"]["coordination_error_max_m"] < 0.1
     assert all(c["safety_commit_breaks"] == 0 for c in _stats(res).values())
+
+
+def test_a_committed_neighbour_is_a_small_disc_on_its_arc_and_the_promise_is_validated():
+    from copath.config import ConfigError
+    from copath.models import UnicycleModel
+    from copath.safety import SafetyConfig, SafetyGuard, commit_radius, predict_position
+
+    with pytest.raises(ConfigError, match=r"safety.commit_accel_mps2 = -0.1 is not allowed"):
+        SafetyConfig(enabled=True, commit_accel_mps2=-0.1)
+    cfg = SafetyConfig(enabled=True, commit_accel_mps2=0.1)
+    models = {n: UnicycleModel(a_max=0.3, alpha_max=1.0) for n in ("a", "b")}
+    guard = SafetyGuard(cfg, "a", models, 0.1)
+    vel = (0.2, 0.0, 0.1)
+    guard.hear("b", (1.0, 0.0), 0.0, vel)
+    for age in (0.5, 1.5, 2.4):
+        (nb,) = guard.neighbours(age)
+        assert nb.spread == pytest.approx(commit_radius(cfg, age))
+        assert nb.position == pytest.approx(predict_position((1.0, 0.0), vel, age))
+        assert nb.committed is not None
+    (nb,) = guard.neighbours(2.6)  # beyond the horizon: the acceleration-limit bound only
+    assert nb.committed is None and (nb.spread is None or nb.spread > commit_radius(cfg, 2.6))
+    # the sender side: a robot that published a plan and then stopped has left its tube
+    guard.published(0.0, (0.0, 0.0, 0.0), vel)
+    guard.apply((0.0, 0.0, 0.0), [0.0, 0.0], 2.0)
+    assert guard.counters()["safety_commit_breaks"] == 1

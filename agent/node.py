@@ -355,7 +355,7 @@ class AgentNode:
         self.link.publish(self.keys.stats(self.rt.name), Stats(self.rt.name, self.link.published, counters))
 
 
-REALTIME_NICE = 5
+REALTIME_NICE = 15
 """Realtime: agents lower their scheduling priority by this much (``os.nice``) so that on a
 busy machine the simulator's 100 Hz physics and the router are served first
 (docs/performance.md, P9); 0 leaves it."""

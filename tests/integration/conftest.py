@@ -25,13 +25,44 @@ class Procs:
         return p
 
     def cleanup(self) -> None:
-        for p in self.started:
-            if p.poll() is None:
-                try:
-                    os.killpg(p.pid, signal.SIGKILL)
-                except ProcessLookupError:
-                    pass
+        """Stop every process started here and every process they started, by pid.
+
+        SIGTERM first, so an orchestrator ends its run and stops its children itself; then
+        SIGKILL for whatever is left, the children included (each robot and the simulator
+        run in a session of their own, so killing the orchestrator's group misses them)."""
+        running = [p for p in self.started if p.poll() is None]
+        family = {pid: cmdline(pid) for p in running for pid in descendants(p.pid)}
+        for p in running:
+            _signal_group(p.pid, signal.SIGTERM)
+        for p in running:
+            try:
                 p.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                _signal_group(p.pid, signal.SIGKILL)
+                p.wait(timeout=10)
+        for pid, argv in family.items():
+            if cmdline(pid) == argv:  # still that process (a pid is not reused for another one)
+                try:
+                    os.kill(pid, signal.SIGKILL)
+                except (ProcessLookupError, PermissionError):
+                    pass
+
+
+def _signal_group(pid: int, sig: int) -> None:
+    try:
+        os.killpg(pid, sig)
+    except (ProcessLookupError, PermissionError):
+        pass
+
+
+def descendants(pid: int) -> list[int]:
+    """Every process below ``pid`` (children, their children, ...), from /proc."""
+    out, todo = [], [pid]
+    while todo:
+        kids = child_pids(todo.pop())
+        out += kids
+        todo += kids
+    return out
 
 
 @pytest.fixture

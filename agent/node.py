@@ -357,8 +357,8 @@ class AgentNode:
 
 REALTIME_NICE = 15
 """Realtime: agents lower their scheduling priority by this much (``os.nice``) so that on a
-busy machine the simulator's 100 Hz physics and the router are served first
-(docs/performance.md, P9); 0 leaves it."""
+busy machine the simulator's 100 Hz physics and the router and recorder are served first
+(docs/performance.md, P9-P10: at 128 robots 5 was not enough); 0 leaves it."""
 
 
 def _yield_to_simulator() -> None:

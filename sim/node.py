@@ -10,8 +10,9 @@ is counted (and logged as an event). ``realtime`` clock: the world is integrated
 wall clock every ``run.physics_dt``; observations and truth go out every ``run.dt``;
 commands are applied when they arrive.
 
-A robot whose liveliness token disappears (its process died) ends the run with a failure
-record, so the orchestrator can report it and the log stays readable.
+A robot whose liveliness token disappears (its process died) and does not come back within
+``run.liveliness_grace_s`` ends the run with a failure record, so the orchestrator can report
+it and the log stays readable (docs/faults.md).
 """
 
 from __future__ import annotations

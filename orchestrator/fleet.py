@@ -153,7 +153,8 @@ class _Zygote:
         if not self.subreaper or self.proc.poll() is not None:
             return None
         try:
-            self.proc.stdin.write((json.dumps({"name": name, "argv": argv, "log": str(log_path)}) + "\n").encode())
+            req = {"name": name, "argv": argv, "log": str(pathlib.Path(log_path).resolve())}  # it runs in DIR/logs
+            self.proc.stdin.write((json.dumps(req) + "\n").encode())
             self.proc.stdin.flush()
             while True:
                 line = self.proc.stdout.readline()

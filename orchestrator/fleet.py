@@ -375,18 +375,28 @@ def run_fleet(scenario: Scenario, opts: RunOptions) -> RunOutcome:
                     ok, reason = False, f"{why} at sim t={recorder.sim_t:.2f} s; see {out / 'logs' / 'sim.log'}"
                     break
                 # normal end: wait for the robots to send their closing accounts and exit
-                deadline = time.monotonic() + 30.0
+                ended = time.monotonic()
+                deadline = ended + 30.0
+                # a restarted robot that came up after the simulator ended waits for a start that
+                # will not come: it gets 5 s, like the others, to show it had rejoined by exiting
+                late = ended + 5.0
                 while time.monotonic() < deadline and any(
                         c.proc.poll() is None and (policy == "fail" or c.name not in scenario.robot_names
                                                    or c.name in ready)  # a frozen robot will not exit
+                        and not (restarts.get(c.name) and time.monotonic() > late)
                         for c in children):
                     time.sleep(0.05)
+                too_late = [c for c in children if restarts.get(c.name) and c.proc.poll() is None]
+                for c in too_late:
+                    logger.warning("robot %s was restarted too late to rejoin before the end; stopping it", c.name)
+                _stop(too_late)
                 stuck = [c.name for c in children if c.proc.poll() is None]
                 if policy != "fail":  # frozen robots the run went on without
                     gone.update(n for n in stuck if n in scenario.robot_names and n not in ready)
                     gone.update(n for n in opts.external if n not in ready)  # cut off, or stopped by hand
                     stuck = [n for n in stuck if n not in gone]
-                bad = [c for c in children[1:] if c.proc.poll() is not None and c.proc.returncode != 0]
+                bad = [c for c in children[1:] if c.proc.poll() is not None and c.proc.returncode != 0
+                       and c not in too_late]
                 if stuck:
                     ok, reason = False, f"processes {stuck} did not exit after the end of the run"
                 elif bad:

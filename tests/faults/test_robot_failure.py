@@ -24,10 +24,10 @@ def _start(procs, out, policy, duration="200"):
                         "--duration", duration, "-q", "--no-plots", "--set", f'run.on_robot_failure="{policy}"'])
 
 
-def _victim(p, out, name="r3") -> int:
+def _victim(p, out, name="r3", under_way_bytes=300_000) -> int:
     mcap = out / "run.mcap"
     deadline = time.monotonic() + 150
-    while not (mcap.is_file() and mcap.stat().st_size > 300_000):  # the run is under way
+    while not (mcap.is_file() and mcap.stat().st_size > under_way_bytes):  # the run is under way
         assert p.poll() is None and time.monotonic() < deadline, p.stderr.read().decode()[-2000:]
         time.sleep(0.05)
     pids = [pid for pid in child_pids(p.pid) if "agent" in cmdline(pid) and name in cmdline(pid)]
@@ -78,3 +78,16 @@ def test_restart_brings_the_robot_back(tmp_path, procs):
     assert [r.detail["robot"] for _, r in rejoined] == ["r3"]
     assert (tmp_path / "logs" / "r3.restart1.log").is_file()
     assert m["robots"]["r3"]["messages_rejected"] == 0
+
+
+def test_a_robot_restarted_too_late_to_rejoin_does_not_fail_the_run(tmp_path, procs):
+    # killed near the end of a short lockstep run: the others finish before the new process
+    # is up, so it waits for a start that never comes; the orchestrator stops it, and the
+    # run ends as it would have without the restart
+    p = _start(procs, tmp_path, "restart", duration="40")
+    os.kill(_victim(p, tmp_path, under_way_bytes=430_000), signal.SIGKILL)  # near the end (about 520 kB)
+    assert p.wait(timeout=240) == 0, p.stderr.read().decode()[-3000:]
+    m = json.loads((tmp_path / "metrics.json").read_text())
+    assert m["ok"] and m["robots"]["r3"]["restarts"] in (0, 1)
+    assert m["robots"]["r3"]["outage_s"] > 0
+    assert (tmp_path / "logs" / "r3.restart1.log").is_file()

@@ -158,7 +158,8 @@ class SafetyConfig:
     age of information at 1 s of delay and 50 % loss in the measured runs)."""
 
     def __post_init__(self) -> None:
-        require(self.commit_accel_mps2 is None or (math.isfinite(self.commit_accel_mps2) and self.commit_accel_mps2 > 0),
+        a_c = self.commit_accel_mps2
+        require(a_c is None or (math.isfinite(a_c) and a_c > 0),
                 "safety.commit_accel_mps2", self.commit_accel_mps2, "must be > 0 (or left out: no commitment)")
         require(math.isfinite(self.commit_radius_m) and self.commit_radius_m > 0, "safety.commit_radius_m",
                 self.commit_radius_m, "must be > 0")
@@ -786,7 +787,8 @@ class SafetyGuard:
             # the robot aims at an inner tube: the applied velocity ramps within a period, which
             # the rows on the command do not see
             out.append(Tube(predict_position((x, y), vel, tau), plan_velocity(vel, tau),
-                            commit_radius(cfg, tau) - TUBE_MARGIN_M, cfg.commit_speed_mps + cfg.commit_accel_mps2 * tau))
+                            commit_radius(cfg, tau) - TUBE_MARGIN_M,
+                            cfg.commit_speed_mps + cfg.commit_accel_mps2 * tau))
         return out
 
     def hear(self, sender: str, position, stamp: float, velocity=None) -> None:

@@ -106,7 +106,9 @@ class RobotRuntime:
         """Robots whose liveliness token went away (the run goes on without them,
         ``run.on_robot_failure``): their messages are dropped and the controller is told."""
         self._heard: dict[str, float] = {}
-        """Newest stamp of a robot-to-robot message delivered from each sender (after faults)."""
+        """When a robot-to-robot message of each sender was last delivered here (after faults).
+        Arrival, not the message's stamp: a neighbour whose every message is 1 s old (a slow
+        link) is still heard every period; it is silence, not age, that makes it lost."""
         self._told: frozenset[str] = frozenset()
         """:attr:`lost` as of the last step (its changes are events)."""
         self._silent: dict[str, float] = {}
@@ -228,7 +230,7 @@ class RobotRuntime:
         lost = self.lost
         # a deterministic order whatever the arrival order (sums over neighbours stay bitwise equal)
         for env in sorted(self.inbox.pop_ready(now), key=lambda e: (e.stamp, e.sender, e.seq)):
-            self._heard[env.sender] = max(env.stamp, self._heard.get(env.sender, env.stamp))
+            self._heard[env.sender] = now  # when it was last heard, not how old its news is
             if env.sender in lost:
                 continue
             if self.comm_range > 0 and math.hypot(env.pos[0] - pose[0], env.pos[1] - pose[1]) > self.comm_range:

@@ -69,11 +69,12 @@ def test_continue_drops_the_silent_robot_and_readmits_it(continued):
     assert _end(res).ok
     sim = [(e.what, e.t, e.detail["robot"], e.detail["cause"]) for e in _events(res, "robot_lost", "robot_rejoined")]
     assert sim == [("robot_lost", 6.0, "r3", "silence"), ("robot_rejoined", 15.0, "r3", "silence")]
-    # r2, r3's only neighbour, finds the silence itself one lease after r3's last message
-    # (stamped 4.9 s), and r3, cut off, loses r2 the same way; both are back a step after the window
+    # r2, r3's only neighbour, finds the silence itself when it has heard nothing for more
+    # than a lease since r3's last message arrived (stamped 4.9 s, delivered at the 5.0 s
+    # step): at 6.1 s; r3, cut off, loses r2 the same way; both are back a step after the window
     seen = sorted((e.source, e.what, round(e.t, 3), e.detail["robot"]) for e in _events(res, "peer_silent", "peer_heard"))
-    assert seen == [("r2", "peer_heard", 15.1, "r3"), ("r2", "peer_silent", 6.0, "r3"),
-                    ("r3", "peer_heard", 15.1, "r2"), ("r3", "peer_silent", 6.0, "r2")]
+    assert seen == [("r2", "peer_heard", 15.1, "r3"), ("r2", "peer_silent", 6.1, "r3"),
+                    ("r3", "peer_heard", 15.1, "r2"), ("r3", "peer_silent", 6.1, "r2")]
     m = res.metrics
     assert m["robots"]["r3"]["outage_s"] == pytest.approx(9.0) and m["robots"]["r3"]["restarts"] == 0
     assert m["robots"]["r1"]["outage_s"] == 0

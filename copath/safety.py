@@ -90,7 +90,7 @@ import numpy as np
 from .config import require
 from .models import OmniModel, UnicycleModel, integrate_body_velocity
 
-__all__ = ["SafetyConfig", "Neighbour", "Tube", "SafetyResult", "SafetyFilter", "SafetyGuard", "max_speed",
+__all__ = ["SafetyConfig", "Neighbour", "Tube", "TubeSet", "SafetyResult", "SafetyFilter", "SafetyGuard", "max_speed",
            "max_turn_rate", "prediction_bound", "predict_position", "commit_radius", "plan_velocity"]
 
 
@@ -224,6 +224,42 @@ class Tube:
     """Rate of the radius now [m/s]: commit_accel_mps2 tau."""
 
 
+@dataclass(frozen=True)
+class TubeSet:
+    """Many :class:`Tube` s as arrays (the filter's hot path: no object per plan and step)."""
+
+    centre: np.ndarray
+    """Plan points now, (k, 2) [m]."""
+    velocity: np.ndarray
+    """Their velocities, (k, 2) [m/s]."""
+    radius: np.ndarray
+    """Tube radii, (k,) [m]."""
+    growth: np.ndarray
+    """Rates of the radii, (k,) [m/s]."""
+
+    def __len__(self) -> int:
+        return len(self.radius)
+
+    @staticmethod
+    def of(tubes: "Sequence[Tube] | TubeSet") -> "TubeSet":
+        """The arrays of ``tubes`` (returned as they are when already a set)."""
+        if isinstance(tubes, TubeSet):
+            return tubes
+        return TubeSet(np.asarray([t.centre for t in tubes], dtype=float).reshape(-1, 2),
+                       np.asarray([t.velocity for t in tubes], dtype=float).reshape(-1, 2),
+                       np.asarray([t.radius for t in tubes], dtype=float),
+                       np.asarray([t.growth for t in tubes], dtype=float))
+
+    def select(self, keep: np.ndarray) -> "TubeSet":
+        """The tubes where the boolean mask ``keep`` is true."""
+        return TubeSet(self.centre[keep], self.velocity[keep], self.radius[keep], self.growth[keep])
+
+    def tubes(self) -> list[Tube]:
+        """One :class:`Tube` per row."""
+        return [Tube((float(c[0]), float(c[1])), (float(v[0]), float(v[1])), float(r), float(g))
+                for c, v, r, g in zip(self.centre, self.velocity, self.radius, self.growth)]
+
+
 def commit_radius(config: SafetyConfig, tau: float) -> float:
     """Radius of the committed tube ``tau`` after a plan's stamp [m] (docs/safety.md,
     "Committed plans")."""
@@ -337,6 +373,10 @@ SLOWED = 1.0 - 1e-6
 fraction of its nominal speed (chosen: whenever a barrier slows it; with 0.2 or 0.5, "nearly
 stopped", the twelve robots of the circle swap close their gaps first and jam under delay and
 loss)."""
+
+_PLAN = ("stamp", "x", "y", "vx", "vy", "w", "speed", "cos_heading", "sin_heading")
+"""Columns of a guard's published plans (the last three: the arc's constants)."""
+
 
 def _spread(nb: Neighbour) -> float:
     """Distance the neighbour may be from its heard position now [m]."""
@@ -518,7 +558,7 @@ class SafetyFilter:
 
     # -- the filter --------------------------------------------------------------------
     def constraints(self, pose, neighbours: Sequence[Neighbour] = (), ranges=None, angles=None,
-                    tubes: Sequence[Tube] = ()) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+                    tubes: Sequence[Tube] | TubeSet = ()) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
         """Every barrier as a row on the command: ``A u >= rhs``, which rows are soft (look-ahead
         rows), and the smallest centre barrier value.
 
@@ -586,7 +626,7 @@ class SafetyFilter:
             A, rhs, soft = np.vstack([A, At]), np.r_[rhs, rt], np.r_[soft, np.full(len(rt), TUBE)]
         return A, rhs, soft, h_min
 
-    def tube_rows(self, pose, tubes: Sequence[Tube]) -> tuple[np.ndarray, np.ndarray]:
+    def tube_rows(self, pose, tubes: Sequence[Tube] | TubeSet) -> tuple[np.ndarray, np.ndarray]:
         """Rows ``A u >= rhs`` that keep the robot in every tube it committed to (committed plans).
 
         With d = p - c (c the plan's point), g = radius - |d| the room left and m = d / |d|,
@@ -597,18 +637,17 @@ class SafetyFilter:
         q = np.array([float(pose[0]), float(pose[1])])
         th = float(pose[2])
         vmap = self.lookahead_map(th) if self.lookahead else self.centre_velocity_map(th)
-        c = np.asarray([t.centre for t in tubes], dtype=float)
-        d = q[None, :] - c
+        ts = TubeSet.of(tubes)
+        d = q[None, :] - ts.centre
         dist = np.linalg.norm(d, axis=1)
         mvec = d / np.maximum(dist, 1e-9)[:, None]
-        g = np.asarray([t.radius for t in tubes]) - dist
+        g = ts.radius - dist
         rate = self.gamma * g
         if self.config.braking and self.model.a_max is not None:
             a_dt = 0.5 * self.model.a_max * self.dt
             stop = np.sqrt(a_dt**2 + self.model.a_max * np.maximum(g, 0.0)) - a_dt
             rate = np.where(g > 0, np.minimum(rate, stop), rate)
-        cvel = np.asarray([t.velocity for t in tubes], dtype=float)
-        bound = np.einsum("ij,ij->i", mvec, cvel) + np.asarray([t.growth for t in tubes]) + rate
+        bound = np.einsum("ij,ij->i", mvec, ts.velocity) + ts.growth + rate
         return -(mvec @ vmap), -bound
 
     def steered_velocity(self, u, theta: float) -> np.ndarray:
@@ -635,7 +674,7 @@ class SafetyFilter:
         return np.linalg.solve(self.lookahead_map(theta), ref)
 
     def filter(self, pose, nominal, neighbours: Sequence[Neighbour] = (), ranges=None, angles=None,
-               tubes: Sequence[Tube] = ()) -> SafetyResult:
+               tubes: Sequence[Tube] | TubeSet = ()) -> SafetyResult:
         """Minimally modify ``nominal`` so every barrier holds; return it unchanged if they do.
 
         When the solution slows the robot (its steered point's speed is a fraction r < 1 of the
@@ -756,8 +795,9 @@ class SafetyGuard:
         """Instants at which a barrier could not be met within the limits (slack > 0)."""
         self.bias_steps = 0
         """Instants at which the deadlock rule's right-hand bias shaped the command."""
-        self._plans: list[tuple[float, float, float, tuple[float, float, float]]] = []
-        """Plans this robot published and still keeps: (stamp, x, y, velocity)."""
+        self._plans = np.zeros((0, len(_PLAN)))
+        """Plans this robot published and still keeps, one row each (columns ``_PLAN``: the stamp,
+        position and world velocity, and the arc's constants, computed once when published)."""
         self.commit_breaks = 0
         """Control instants at which the robot was outside a tube it committed to (the guarantee's
         premise broken; docs/safety.md, "Committed plans")."""
@@ -770,26 +810,47 @@ class SafetyGuard:
         ``commit_horizon_s``."""
         if not self._commit or velocity is None:
             return
-        if self._plans and self._plans[-1][0] == float(stamp):
+        if len(self._plans) and self._plans[-1, 0] == float(stamp):
             return
-        self._plans.append((float(stamp), float(position[0]), float(position[1]),
-                            (float(velocity[0]), float(velocity[1]), float(velocity[2]))))
+        vx, vy, w = float(velocity[0]), float(velocity[1]), float(velocity[2])
+        heading = math.atan2(vy, vx)  # the arc's constants, as predict_position computes them
+        row = (float(stamp), float(position[0]), float(position[1]), vx, vy, w, math.hypot(vx, vy),
+               math.cos(heading), math.sin(heading))
+        self._plans = np.vstack([self._plans, np.array([row])])
 
     def tubes(self, now: float) -> list[Tube]:
         """The tubes this robot must stay in at ``now`` (plans younger than the horizon)."""
+        return self.tube_set(now).tubes()
+
+    def tube_set(self, now: float) -> TubeSet:
+        """:meth:`tubes` as arrays, all plans at once: the same numbers as :func:`predict_position`,
+        :func:`plan_velocity` and :func:`commit_radius` per plan, operation for operation."""
         if not self._commit:
-            return []
+            return TubeSet.of(())
         cfg = self._config
-        self._plans = [p for p in self._plans if now - p[0] < cfg.commit_horizon_s - 1e-9]
-        out = []
-        for stamp, x, y, vel in self._plans:
-            tau = now - stamp
-            # the robot aims at an inner tube: the applied velocity ramps within a period, which
-            # the rows on the command do not see
-            out.append(Tube(predict_position((x, y), vel, tau), plan_velocity(vel, tau),
-                            commit_radius(cfg, tau) - TUBE_MARGIN_M,
-                            cfg.commit_speed_mps + cfg.commit_accel_mps2 * tau))
-        return out
+        P = self._plans
+        if len(P):
+            P = self._plans = P[now - P[:, 0] < cfg.commit_horizon_s - 1e-9]
+        x, y, vx, vy, w, speed, ch, sh = (P[:, k] for k in range(1, len(_PLAN)))
+        tau = now - P[:, 0]
+        t = np.maximum(tau, 0.0)
+        # predict_position: integrate_body_velocity from (x, y, heading) with (speed, 0, w) for t
+        a = w * t
+        small = np.abs(a) < 1e-9
+        w_safe = np.where(small, 1.0, w)
+        sa, ca = np.sin(a), np.cos(a)
+        dx_b = np.where(small, speed * t, (speed * sa + 0.0 * (ca - 1.0)) / w_safe)
+        dy_b = np.where(small, 0.0 * t, (speed * (1.0 - ca) + 0.0 * sa) / w_safe)
+        still = speed < 1e-12
+        cx = np.where(still, x, x + ch * dx_b - sh * dy_b)
+        cy = np.where(still, y, y + sh * dx_b + ch * dy_b)
+        # plan_velocity: the sent velocity turned by w tau
+        cw, sw = np.cos(w * tau), np.sin(w * tau)
+        # the robot aims at an inner tube: the applied velocity ramps within a period, which
+        # the rows on the command do not see
+        radius = cfg.commit_radius_m + cfg.commit_speed_mps * t + 0.5 * cfg.commit_accel_mps2 * t**2
+        return TubeSet(np.stack([cx, cy], axis=1), np.stack([cw * vx - sw * vy, sw * vx + cw * vy], axis=1),
+                       radius - TUBE_MARGIN_M, cfg.commit_speed_mps + cfg.commit_accel_mps2 * tau)
 
     def hear(self, sender: str, position, stamp: float, velocity=None) -> None:
         """Remember the newest position (and world velocity (xdot, ydot, thetadot), when the
@@ -850,15 +911,16 @@ class SafetyGuard:
 
     def apply(self, pose, command, now: float, ranges=None, angles=None) -> SafetyResult:
         """Filter one command and record the intervention."""
-        tubes = self.tubes(now)
-        if tubes:
+        tubes = self.tube_set(now)
+        if len(tubes):
             q = np.array([float(pose[0]), float(pose[1])])
-            gap = np.array([t.radius + TUBE_MARGIN_M - float(np.hypot(*(q - t.centre))) for t in tubes])
+            d = q[None, :] - tubes.centre
+            gap = tubes.radius + TUBE_MARGIN_M - np.hypot(d[:, 0], d[:, 1])
             if gap.min() < 0:
                 self.commit_breaks += 1
                 self.commit_excess_max = max(self.commit_excess_max, float(-gap.min()))
             # a tube already left is broken (counted): pulling back into it would not undo that
-            tubes = [t for t, g in zip(tubes, gap) if g >= 0]
+            tubes = tubes.select(gap >= 0)
         res = self.filter.filter(pose, command, self.neighbours(now), ranges, angles, tubes)
         if res.active:
             self.interventions += 1

@@ -88,7 +88,7 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from .config import require
-from .models import OmniModel, UnicycleModel, integrate_body_velocity
+from .models import OmniModel, UnicycleModel
 
 __all__ = ["SafetyConfig", "Neighbour", "Tube", "TubeSet", "SafetyResult", "SafetyFilter", "SafetyGuard", "max_speed",
            "max_turn_rate", "prediction_bound", "predict_position", "commit_radius", "plan_velocity"]
@@ -341,8 +341,23 @@ def predict_position(position, velocity, tau: float) -> tuple[float, float]:
     speed = math.hypot(vx, vy)
     if speed < 1e-12:
         return float(position[0]), float(position[1])
-    p = integrate_body_velocity((position[0], position[1], math.atan2(vy, vx)), (speed, 0.0, w), max(tau, 0.0))
-    return float(p[0]), float(p[1])
+    heading = math.atan2(vy, vx)
+    return _arc(float(position[0]), float(position[1]), speed, math.cos(heading), math.sin(heading), w,
+                max(tau, 0.0))
+
+
+def _arc(x: float, y: float, speed: float, c: float, s: float, w: float, t: float) -> tuple[float, float]:
+    """Centre after holding the body velocity (speed, 0, w) for t from (x, y) heading (c, s) = (cos,
+    sin): the closed form of (3.1)/(3.3), operation for operation that of
+    :func:`copath.models.integrate_body_velocity` (the same numbers, without its array)."""
+    a = w * t
+    if abs(a) < 1e-9:
+        dx_b, dy_b = speed * t, 0.0 * t
+    else:
+        sa, ca = math.sin(a), math.cos(a)
+        dx_b = (speed * sa + 0.0 * (ca - 1.0)) / w
+        dy_b = (speed * (1.0 - ca) + 0.0 * sa) / w
+    return x + c * dx_b - s * dy_b, y + s * dx_b + c * dy_b
 
 
 LOOKAHEAD_SLACK_SHARE = 0.01
@@ -514,12 +529,16 @@ class SafetyFilter:
                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Barrier rows: normals n (k, 2), values h (k,) [m] and gains (k,) [1/s] so that
         ``n @ pdot >= -gain * h`` is each barrier's condition; see the module docstring."""
+        return self._barriers(pose, neighbours, ranges, angles)[:3]
+
+    def _barriers(self, pose, neighbours: Sequence[Neighbour], ranges=None, angles=None):
+        """:meth:`barriers` plus the distances |p_i - p_j| (k,) and the neighbours heard (the first
+        rows), so :meth:`constraints` need not compute them again."""
         cfg = self.config
         q = np.array([float(pose[0]), float(pose[1])])
         pts, dist, gain = [], [], []
-        for nb in neighbours:
-            if nb.age > cfg.max_age_s:
-                continue
+        heard = [nb for nb in neighbours if nb.age <= cfg.max_age_s]
+        for nb in heard:
             pts.append(nb.position)
             dist.append(self.r_eff + nb.radius + cfg.margin_m + _spread(nb))
             gain.append(0.5 * self.gamma)  # its share: the neighbour's filter takes the other half
@@ -535,11 +554,11 @@ class SafetyFilter:
                 # half as well: the point may be another robot whose filter sees this one too
                 gain.append(0.5 * self.gamma)
         if not pts:
-            return np.zeros((0, 2)), np.zeros(0), np.zeros(0)
+            return np.zeros((0, 2)), np.zeros(0), np.zeros(0), np.zeros(0), heard
         d = q[None, :] - np.asarray(pts, dtype=float)
         norm = np.linalg.norm(d, axis=1)
         n = d / np.maximum(norm, 1e-9)[:, None]
-        return n, norm - np.asarray(dist), np.asarray(gain)
+        return n, norm - np.asarray(dist), np.asarray(gain), norm, heard
 
     def _direction_error(self, pose, neighbours: Sequence[Neighbour]) -> np.ndarray:
         """kappa_j = |n - n_hat| bound for each neighbour row: 2 sin(asin(min(1, rho / d)) / 2)
@@ -567,7 +586,7 @@ class SafetyFilter:
         grown over the robot) asks only not to close in further (h clamped at 0), so stopping
         stays feasible."""
         th = float(pose[2])
-        n, h, gain = self.barriers(pose, neighbours, ranges, angles)
+        n, h, gain, norm, heard = self._barriers(pose, neighbours, ranges, angles)
         A = n @ self.centre_velocity_map(th)  # (k, m): n^T G(theta)
         rhs = -gain * np.maximum(h, 0.0)
         if self.config.braking and self.model.a_max is not None:
@@ -585,7 +604,6 @@ class SafetyFilter:
         # tube, a disc moving at c' and growing at e', so this robot alone keeps out of it, with
         # the whole gap: n^T (pdot - c') - e' >= -rate(h), rate = gamma h, or the speed from which
         # it stops relative to the disc within h (deceleration a_max less the disc's own)
-        heard = [nb for nb in neighbours if nb.age <= self.config.max_age_s]
         for k, nb in enumerate(heard):
             if nb.committed is None:
                 continue
@@ -602,29 +620,34 @@ class SafetyFilter:
         # normal is within |n - n_hat| <= kappa of the heard one and the true closing rate is
         # n^T pdot >= n_hat^T pdot - kappa |pdot| (docs/safety.md, "stale directions")
         kappa = np.zeros(len(h))
-        k_nb = self._direction_error(pose, neighbours)  # the neighbour rows come first
-        kappa[:len(k_nb)] = k_nb
+        if heard:  # the neighbour rows come first (as _direction_error, with the distances at hand)
+            ratio = np.minimum(1.0, np.array([_spread(nb) for nb in heard]) / np.maximum(norm[:len(heard)], 1e-9))
+            kappa[:len(heard)] = 2.0 * np.sin(0.5 * np.arcsin(ratio))
         if not self.omni:  # |pdot| = |v|: one row for each sign of v, exact
-            A = np.vstack([A - np.c_[kappa, np.zeros(len(h))], A + np.c_[kappa, np.zeros(len(h))]])
-            rhs = np.r_[rhs, rhs]
+            K = np.zeros((len(h), 2))
+            K[:, 0] = kappa
+            blocks_a, blocks_r = [A - K, A + K], [rhs, rhs]
         elif np.any(kappa > 0):  # |(u, v)| <= max_k c_k^T (u, v) / cos(pi / K): K rows per neighbour
             moving = kappa > 0
-            extra = [A[moving] - (kappa[moving] / _COS_DIR)[:, None] * c[None, :] for c in _DIRS]
-            A = np.vstack([A[~moving], *extra])
-            rhs = np.r_[rhs[~moving], np.tile(rhs[moving], len(_DIRS))]
-        soft = np.full(len(rhs), HARD)
+            blocks_a = [A[~moving]] + [A[moving] - (kappa[moving] / _COS_DIR)[:, None] * c[None, :] for c in _DIRS]
+            blocks_r = [rhs[~moving], np.tile(rhs[moving], len(_DIRS))]
+        else:
+            blocks_a, blocks_r = [A], [rhs]
+        blocks_s = [np.full(sum(len(r) for r in blocks_r), HARD)]
         if self.lookahead:
             # look-ahead rows are not clamped: a look-ahead point inside its inflated disc is
             # pushed back out (which reopens the gaps a robot needs to steer round the others);
             # they are soft, so they can never make the QP infeasible
-            nz, hz = self.lookahead_barriers(pose, neighbours)
-            A = np.vstack([A, nz @ self.lookahead_map(th)])
-            rhs = np.r_[rhs, -0.5 * self.gamma * np.where(hz > 0, hz, LOOKAHEAD_RECOVERY * hz)]
-            soft = np.r_[soft, np.full(len(hz), LOOKAHEAD)]
+            nz, hz = self.lookahead_barriers(pose, heard)
+            blocks_a.append(nz @ self.lookahead_map(th))
+            blocks_r.append(-0.5 * self.gamma * np.where(hz > 0, hz, LOOKAHEAD_RECOVERY * hz))
+            blocks_s.append(np.full(len(hz), LOOKAHEAD))
         if tubes:
             At, rt = self.tube_rows(pose, tubes)
-            A, rhs, soft = np.vstack([A, At]), np.r_[rhs, rt], np.r_[soft, np.full(len(rt), TUBE)]
-        return A, rhs, soft, h_min
+            blocks_a.append(At)
+            blocks_r.append(rt)
+            blocks_s.append(np.full(len(rt), TUBE))
+        return np.concatenate(blocks_a), np.concatenate(blocks_r), np.concatenate(blocks_s), h_min
 
     def tube_rows(self, pose, tubes: Sequence[Tube] | TubeSet) -> tuple[np.ndarray, np.ndarray]:
         """Rows ``A u >= rhs`` that keep the robot in every tube it committed to (committed plans).
@@ -730,11 +753,11 @@ class SafetyFilter:
         pad = self._rows - k
         soft = np.zeros(k, dtype=int) if soft is None else np.asarray(soft, dtype=int)
         w = self.config.slack_weight
-        g = np.r_[-2 * self._W @ u_ref, w, w * LOOKAHEAD_SLACK_SHARE, w * TUBE_SLACK_SHARE]
+        g = np.concatenate([-2 * self._W @ u_ref, [w, w * LOOKAHEAD_SLACK_SHARE, w * TUBE_SLACK_SHARE]])
         slack_cols = (soft[:, None] == np.arange(_NS)[None, :]).astype(float)
         a = np.vstack([self._fixed_a, np.hstack([A, slack_cols]), np.zeros((pad, m + _NS))])
-        lba = np.r_[self._fixed_l, rhs, np.full(pad, -np.inf)]
-        uba = np.r_[self._fixed_u, np.full(k + pad, np.inf)]
+        lba = np.concatenate([self._fixed_l, rhs, np.full(pad, -np.inf)])
+        uba = np.concatenate([self._fixed_u, np.full(k + pad, np.inf)])
         sol = qp(h=self._H, g=g, a=a, lba=lba, uba=uba, lbx=self._lbx, ubx=self._ubx)
         x = np.asarray(sol["x"]).ravel()
         ok = bool(qp.stats().get("success", False)) and bool(np.all(np.isfinite(x)))

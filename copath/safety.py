@@ -806,6 +806,7 @@ class SafetyGuard:
         self._limits = {n: (m.a_max, m.alpha_max, max_turn_rate(m)) for n, m in models.items()}
         self._dt = float(dt)
         self._vel: dict[str, tuple[float, float, float]] = {}
+        self._arcs: dict[str, tuple[float, float, float]] = {}  # speed, cos and sin of the heading of _vel
         self._heard: dict[str, tuple[float, float, float]] = {}
         self._before: dict[str, tuple[float, float, float]] = {}  # the sample before the newest
         self.interventions = 0
@@ -818,8 +819,8 @@ class SafetyGuard:
         """Instants at which a barrier could not be met within the limits (slack > 0)."""
         self.bias_steps = 0
         """Instants at which the deadlock rule's right-hand bias shaped the command."""
-        self._plans = np.zeros((0, len(_PLAN)))
-        """Plans this robot published and still keeps, one row each (columns ``_PLAN``: the stamp,
+        self._plans = np.zeros((len(_PLAN), 0))
+        """Plans this robot published and still keeps, one column each (rows ``_PLAN``: the stamp,
         position and world velocity, and the arc's constants, computed once when published)."""
         self.commit_breaks = 0
         """Control instants at which the robot was outside a tube it committed to (the guarantee's
@@ -833,13 +834,13 @@ class SafetyGuard:
         ``commit_horizon_s``."""
         if not self._commit or velocity is None:
             return
-        if len(self._plans) and self._plans[-1, 0] == float(stamp):
+        if self._plans.shape[1] and self._plans[0, -1] == float(stamp):
             return
         vx, vy, w = float(velocity[0]), float(velocity[1]), float(velocity[2])
         heading = math.atan2(vy, vx)  # the arc's constants, as predict_position computes them
         row = (float(stamp), float(position[0]), float(position[1]), vx, vy, w, math.hypot(vx, vy),
                math.cos(heading), math.sin(heading))
-        self._plans = np.vstack([self._plans, np.array([row])])
+        self._plans = np.concatenate([self._plans, np.array(row)[:, None]], axis=1)
 
     def tubes(self, now: float) -> list[Tube]:
         """The tubes this robot must stay in at ``now`` (plans younger than the horizon)."""
@@ -852,28 +853,40 @@ class SafetyGuard:
             return TubeSet.of(())
         cfg = self._config
         P = self._plans
-        if len(P):
-            P = self._plans = P[now - P[:, 0] < cfg.commit_horizon_s - 1e-9]
-        x, y, vx, vy, w, speed, ch, sh = (P[:, k] for k in range(1, len(_PLAN)))
-        tau = now - P[:, 0]
+        tau = now - P[0]
+        keep = tau < cfg.commit_horizon_s - 1e-9
+        if not keep.all():
+            P = self._plans = P[:, keep]
+            tau = tau[keep]
+        _, x, y, vx, vy, w, speed, ch, sh = P
         t = np.maximum(tau, 0.0)
         # predict_position: integrate_body_velocity from (x, y, heading) with (speed, 0, w) for t
         a = w * t
         small = np.abs(a) < 1e-9
-        w_safe = np.where(small, 1.0, w)
         sa, ca = np.sin(a), np.cos(a)
-        dx_b = np.where(small, speed * t, (speed * sa + 0.0 * (ca - 1.0)) / w_safe)
-        dy_b = np.where(small, 0.0 * t, (speed * (1.0 - ca) + 0.0 * sa) / w_safe)
+        if small.any():
+            w_safe = np.where(small, 1.0, w)
+            dx_b = np.where(small, speed * t, (speed * sa + 0.0 * (ca - 1.0)) / w_safe)
+            dy_b = np.where(small, 0.0 * t, (speed * (1.0 - ca) + 0.0 * sa) / w_safe)
+        else:
+            dx_b = (speed * sa + 0.0 * (ca - 1.0)) / w
+            dy_b = (speed * (1.0 - ca) + 0.0 * sa) / w
+        centre = np.empty((len(tau), 2))
+        centre[:, 0] = x + ch * dx_b - sh * dy_b
+        centre[:, 1] = y + sh * dx_b + ch * dy_b
         still = speed < 1e-12
-        cx = np.where(still, x, x + ch * dx_b - sh * dy_b)
-        cy = np.where(still, y, y + sh * dx_b + ch * dy_b)
+        if still.any():
+            centre[still, 0], centre[still, 1] = x[still], y[still]
         # plan_velocity: the sent velocity turned by w tau
-        cw, sw = np.cos(w * tau), np.sin(w * tau)
+        wt = w * tau
+        cw, sw = np.cos(wt), np.sin(wt)
+        velocity = np.empty((len(tau), 2))
+        velocity[:, 0] = cw * vx - sw * vy
+        velocity[:, 1] = sw * vx + cw * vy
         # the robot aims at an inner tube: the applied velocity ramps within a period, which
         # the rows on the command do not see
         radius = cfg.commit_radius_m + cfg.commit_speed_mps * t + 0.5 * cfg.commit_accel_mps2 * t**2
-        return TubeSet(np.stack([cx, cy], axis=1), np.stack([cw * vx - sw * vy, sw * vx + cw * vy], axis=1),
-                       radius - TUBE_MARGIN_M, cfg.commit_speed_mps + cfg.commit_accel_mps2 * tau)
+        return TubeSet(centre, velocity, radius - TUBE_MARGIN_M, cfg.commit_speed_mps + cfg.commit_accel_mps2 * tau)
 
     def hear(self, sender: str, position, stamp: float, velocity=None) -> None:
         """Remember the newest position (and world velocity (xdot, ydot, thetadot), when the
@@ -886,7 +899,10 @@ class SafetyGuard:
                 self._before[sender] = old
             self._heard[sender] = (float(position[0]), float(position[1]), float(stamp))
             if velocity is not None and len(velocity) == 3:
-                self._vel[sender] = (float(velocity[0]), float(velocity[1]), float(velocity[2]))
+                vx, vy = float(velocity[0]), float(velocity[1])
+                self._vel[sender] = (vx, vy, float(velocity[2]))
+                heading = math.atan2(vy, vx)  # the arc's constants, as predict_position computes them
+                self._arcs[sender] = (math.hypot(vx, vy), math.cos(heading), math.sin(heading))
             else:
                 self._vel.pop(sender, None)
 
@@ -895,32 +911,31 @@ class SafetyGuard:
         for sender, (x, y, stamp) in sorted(self._heard.items()):
             r, s, look = self._bounds[sender]
             age = max(now - stamp, 0.0)
-            nb = Neighbour((x, y), age, r, s, lookahead=look)
+            nb = None
             prev = self._before.get(sender)
             a_max, alpha_max, w_bound = self._limits[sender]
             vel = self._vel.get(sender)
             if self._commit and vel is not None and age < self._config.commit_horizon_s:
                 # the sender keeps within its committed tube around the arc it published
                 # (docs/safety.md, "committed plans"); with an enforced limit, the tighter of the two
+                speed = self._arcs[sender][0]
                 spread = commit_radius(self._config, age)
                 if a_max is not None:
-                    spread = min(spread, prediction_bound(age, math.hypot(vel[0], vel[1]), a_max, alpha_max,
-                                                          w_bound, self._dt))
+                    spread = min(spread, prediction_bound(age, speed, a_max, alpha_max, w_bound, self._dt))
                 if spread < s * age:
                     cfg = self._config
                     cv = plan_velocity(vel, age)
                     grow = cfg.commit_speed_mps + cfg.commit_accel_mps2 * age
                     # the disc's own acceleration: the arc's turn and the radius's growth
-                    acc = math.hypot(vel[0], vel[1]) * abs(vel[2]) + cfg.commit_accel_mps2
-                    nb = Neighbour(predict_position((x, y), vel, age), age, r, s, spread, look, True,
+                    acc = speed * abs(vel[2]) + cfg.commit_accel_mps2
+                    nb = Neighbour(self._predict(sender, x, y, age), age, r, s, spread, look, True,
                                    (cv[0], cv[1], grow, acc))
             elif a_max is not None and vel is not None:
                 # the sender's enforced acceleration limit and its sent velocity: a guaranteed,
                 # tighter disc around the predicted arc (docs/safety.md, "acceleration limits")
-                speed = math.hypot(vel[0], vel[1])
-                spread = prediction_bound(age, speed, a_max, alpha_max, w_bound, self._dt)
+                spread = prediction_bound(age, self._arcs[sender][0], a_max, alpha_max, w_bound, self._dt)
                 if spread < s * age:
-                    nb = Neighbour(predict_position((x, y), vel, age), age, r, s, spread, look, True)
+                    nb = Neighbour(self._predict(sender, x, y, age), age, r, s, spread, look, True)
             elif self._accel is not None and prev is not None:
                 # velocity averaged over [t0, t1] is within accel * (t - t0) of the velocity at
                 # any t in [t1, now]: extrapolate and bound the error of the displacement
@@ -929,8 +944,16 @@ class SafetyGuard:
                 spread = self._accel * (now - t0) * age
                 if spread < s * age:
                     nb = Neighbour((x + vx * age, y + vy * age), age, r, s, spread, look)
-            out.append(nb)
+            out.append(Neighbour((x, y), age, r, s, lookahead=look) if nb is None else nb)
         return out
+
+    def _predict(self, sender: str, x: float, y: float, age: float) -> tuple[float, float]:
+        """:func:`predict_position` of the sender's last message ``age`` (>= 0) later, with the arc's
+        constants computed once when it was heard (the same numbers)."""
+        speed, c, s = self._arcs[sender]
+        if speed < 1e-12:
+            return x, y
+        return _arc(x, y, speed, c, s, self._vel[sender][2], age)
 
     def apply(self, pose, command, now: float, ranges=None, angles=None) -> SafetyResult:
         """Filter one command and record the intervention."""

@@ -32,7 +32,8 @@ PAYLOADS: dict[str, dict[str, str]] = {
     "role_state": {"task": "int", "index": "int", "phase": "int", "pos": "floats", "vel": "floats", "deg": "int",
                    "z": "float", "eta": "float", "claim": "int", "d": "float", "taken": "ints", "park": "floats",
                    "rulings": "any", "ac_x?": "floats", "ac_to?": "strs", "ac_a?": "floats", "ac_e?": "floats", "ac_deg?": "int",
-                   "known?": "any", "xf?": "floats", "zdot?": "float", "etadot?": "float"},
+                   "known?": "any", "xf?": "floats", "zdot?": "float", "etadot?": "float",
+                   "claims?": "any", "gone?": "any"},
     # E6.6: coordination coordinate xi = s - s_d, its rate, and the formation index.
     "formation_state": {"xi": "float", "xidot": "float", "formation": "int", "index": "int", "xiddot?": "float"},
 }

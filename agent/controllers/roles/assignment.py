@@ -118,6 +118,9 @@ class RoleBook:
     won: set[tuple[int, str]] = field(default_factory=set)
     """(position, initiator) pairs where a ruling said this robot won."""
     conflicts_initiated: int = 0
+    released: set[int] = field(default_factory=set)
+    """Positions released from J^t_i because the robot that claimed them is lost
+    (docs/ambiguities.md, A38): merges of the neighbours' taken sets skip them."""
 
     @property
     def available(self) -> list[int]:
@@ -132,9 +135,17 @@ class RoleBook:
 
     def merge(self, taken_sets: Iterable[Iterable[int]], claims: Iterable[int] = ()) -> None:
         """Algorithm 6.2 lines 1-2 with docs/ambiguities.md, A24: J^t_i <- J^t_i U (U_j J^t_j)."""
+        skip = self.released
         for ts in taken_sets:
-            self.taken.update(int(k) for k in ts if 0 <= int(k) < self.n_positions)
+            self.taken.update(int(k) for k in ts if 0 <= int(k) < self.n_positions and int(k) not in skip)
         self.taken.update(int(k) for k in claims if 0 <= int(k) < self.n_positions)
+
+    def release(self, positions: Iterable[int]) -> None:
+        """Release the positions of lost robots (docs/ambiguities.md, A38): they leave
+        J^t_i, and later merges of taken sets skip them until :meth:`release` is called
+        again without them (a live robot's own claim always counts)."""
+        self.released = {int(k) for k in positions if 0 <= int(k) < self.n_positions and int(k) != self.position}
+        self.taken -= self.released
 
     def conflicts(self, claims: Iterable[Claim]) -> list[Claim]:
         """Neighbours claiming this robot's position, in descending index order (queue A_i)."""

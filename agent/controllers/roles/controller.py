@@ -137,7 +137,7 @@ class RolesController:
 
     def _agree(self, same: dict[str, Peer], p: np.ndarray) -> None:
         """One step of Algorithm 6.1; adopts the placement once agreed."""
-        est = self.agreement.step(same, self._t)
+        est = self.agreement.step(same, self._t, self.peers.lost)
         if self.roles.phase != CONSENSUS or self.roles.targets is not None:
             return
         # a neighbour has already agreed: take its transform (the first agreement floods
@@ -203,7 +203,7 @@ class RolesController:
         self._t = float(obs.t)
         dt = self.dt if self._t_prev is None else min(max(self._t - self._t_prev, 0.0), 5 * self.dt)
         self._t_prev = self._t
-        self.peers.ingest(inbox, self._t)
+        self.peers.ingest(inbox, self._t, obs.lost)
         if self.roles is None:
             self._enter_task(0, p, self._t)
         fresh = self.peers.fresh(self._t)
@@ -212,6 +212,7 @@ class RolesController:
             self._enter_task(later, p, self._t)  # a neighbour has moved on: follow it
         same = self._same()
         roles = self.roles
+        roles.track_claims(same, obs.lost, self._t, 2 * self.cfg.arrive_tol)
         # phase 1: agreement on the placement
         if self.cfg.relay_positions:
             roles.relay(same, self._t)
@@ -225,13 +226,17 @@ class RolesController:
         if roles.phase in (ASSIGNED, UNASSIGNED):
             waiting = self._negotiate(same, p)
         if roles.phase == UNASSIGNED:
-            roles.check_park(p, same, self.cfg.park_clearance)
+            pos = roles.take_released(p, same, self._t, self.cfg.gather_s)
+            if pos is not None:
+                self._take(pos, p)
+            else:
+                roles.check_park(p, same, self.cfg.park_clearance)
         # phase 3: navigation
         goal = roles.goal()
         if goal is None or waiting:
             cmd = np.zeros(2)
         else:
-            obstacles = [q.position for q in self.peers.fresh(self._t).values()]
+            obstacles = [q.position for q in self.peers.fresh(self._t).values()] + self.peers.wrecks()
             cmd = self.motion.drive(pose, goal, obstacles, self._t, self.name)
         # phase 4: task sequencing, (6.16)
         self.tasks.done = self._finished(p, waiting)
@@ -259,6 +264,8 @@ class RolesController:
             "claim": int(roles.position),
             "d": float(roles.distance(pose[:2])) if roles.phase == ASSIGNED else 1e9,
             "taken": sorted(int(k) for k in roles.book.taken),
+            "claims": roles.claims_payload(self._t, roles.distance(pose[:2]), 2 * self.cfg.arrive_tol),
+            "gone": {m: float(s) for m, s in sorted(roles.gone.items())},
             "park": [float(c) for c in roles.park] if roles.park is not None else [],
         }
         # rulings are repeated for a while so a lost message does not lose them

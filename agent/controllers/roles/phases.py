@@ -90,12 +90,16 @@ class PeerTable:
         self.timeout = float(timeout)
         self.inbox = LatestMessages(kinds=(MESSAGE_KIND,), accept=_has_position)
         self.peers: dict[str, Peer] = {}
+        self.lost: frozenset[str] = frozenset()
+        """Robots known to be gone (``Observation.lost``): out of the graph at once."""
         self._fresh: tuple[float, dict[str, Peer], dict[int, dict[str, Peer]]] | None = None
         """(t, neighbours at t, task -> those working on it), reset by :meth:`ingest`."""
 
-    def ingest(self, inbox, t: float) -> None:
-        """Take in one step's messages (newest per neighbour by stamp)."""
+    def ingest(self, inbox, t: float, lost: frozenset[str] = frozenset()) -> None:
+        """Take in one step's messages (newest per neighbour by stamp); ``lost`` are the
+        robots known to be gone (docs/ambiguities.md, A38)."""
         self._fresh = None
+        self.lost = frozenset(lost)
         for got in self.inbox.update(inbox, t):
             pl = dict(got.payload)
             pos = got.position if got.position is not None else pl.get("pos")
@@ -114,8 +118,14 @@ class PeerTable:
     def fresh(self, t: float) -> dict[str, Peer]:
         """Neighbours N_i at time t (computed once per step: callers must not modify it)."""
         if self._fresh is None or self._fresh[0] != t:
-            self._fresh = (t, {n: q for n, q in self.peers.items() if t - q.heard <= self.timeout}, {})
+            lost = self.lost
+            self._fresh = (t, {n: q for n, q in self.peers.items() if t - q.heard <= self.timeout and n not in lost}, {})
         return self._fresh[1]
+
+    def wrecks(self) -> list[np.ndarray]:
+        """Last heard positions of the lost robots: a robot that went quiet or died is
+        still somewhere, so it stays an obstacle where it was last heard (A38)."""
+        return [self.peers[n].position for n in sorted(self.lost) if n in self.peers]
 
     def same_task(self, t: float, task: int) -> dict[str, Peer]:
         """Neighbours working on ``task`` (once per step and task: callers must not modify it)."""
@@ -154,11 +164,13 @@ class Agreement:
         self.heard: dict[str, Peer] = {}
         """Newest same-task state of every consensus neighbour."""
 
-    def step(self, same: dict[str, Peer], t: float | None = None) -> np.ndarray:
-        """One consensus iteration over the neighbours' latest contributions; the estimate."""
+    def step(self, same: dict[str, Peer], t: float | None = None, lost: frozenset[str] = frozenset()) -> np.ndarray:
+        """One consensus iteration over the neighbours' latest contributions; the estimate.
+        A robot in ``lost`` leaves at once instead of after the memory (A38)."""
         self.heard.update(same)
         if t is not None:
-            self.heard = {n: q for n, q in self.heard.items() if n in same or t - q.heard <= self.memory_s}
+            self.heard = {n: q for n, q in self.heard.items()
+                          if n in same or (t - q.heard <= self.memory_s and n not in lost)}
         nbrs = {}
         for n, q in (self.heard if t is not None else same).items():
             x = q.payload.get("ac_x")
@@ -231,6 +243,17 @@ class Assignment:
         once known and the table only grows; the message carries it as
         ``{name: [x, y]}`` (:meth:`relay`)."""
         self.known_changed = t
+        self.claims: dict[str, tuple[int, float, bool]] = {}
+        """Who claims what (A38): robot -> (claimed position or -1, stamp of the message that
+        said so, whether it was then at the position), the newest per robot, heard directly
+        or relayed by the neighbours (``claims``)."""
+        self.gone: dict[str, float] = {}
+        """Tombstones (A38): lost robot -> stamp of its newest claim known when it was lost;
+        a claim of that robot stamped later lifts it (it was heard again)."""
+        self._lost_seen: frozenset[str] = frozenset()
+        self.avail_since = (tuple(), t)
+        """(J^a_i, since when unchanged): a robot without a position waits ``gather_s``
+        before it takes a released one."""
         self.announce_targets = False
         self.announce_index = False
 
@@ -259,7 +282,7 @@ class Assignment:
         """
         self.merge(same)
         if relay:
-            others = [xy for n, xy in sorted(self.known.items()) if n != self.name]
+            others = [xy for n, xy in sorted(self.known.items()) if n != self.name and n not in self.gone]
             pos = local_hungarian(self.snapshot, others, self.targets, range(len(self.targets)))
             if pos is not None and pos in self.book.taken:
                 # someone already holds it (a robot this one has not heard of): nearest free one
@@ -321,6 +344,61 @@ class Assignment:
         """The table for the message: ``{name: [x, y]}`` by name (one map of pairs: a
         third of the decoding and validation cost of a list of records per entry)."""
         return {n: [x, y] for n, (x, y) in sorted(self.known.items())}
+
+    def track_claims(self, same: dict[str, Peer], lost: frozenset[str], t: float, at_tol: float) -> None:
+        """Keep who claims which position and release the positions of lost robots (A38).
+
+        Claims are merged newest-stamp-first from the neighbours' own claims and the
+        tables they relay; tombstones from this robot's ``lost`` (when a robot enters it)
+        and from the neighbours' ``gone``. A lost robot's position is released unless a
+        live robot claims it too, or the lost robot was last heard standing on it (its
+        body still fills it).
+        """
+        claims, gone = self.claims, self.gone
+        for n, q in same.items():
+            table = q.payload.get("claims")
+            if isinstance(table, dict):
+                for m, e in table.items():
+                    if m == self.name or not (isinstance(e, list) and len(e) == 3):
+                        continue
+                    if m not in claims or float(e[1]) > claims[m][1]:
+                        claims[m] = (int(e[0]), float(e[1]), bool(e[2]))
+            stamp = q.heard - q.age
+            if n not in claims or stamp >= claims[n][1]:
+                claims[n] = (int(q.payload.get("claim", -1)), stamp, float(q.payload.get("d", math.inf)) <= at_tol)
+            for m, s in (q.payload.get("gone") or {}).items():
+                if m != self.name and float(s) > gone.get(m, -math.inf):
+                    gone[m] = float(s)
+        for m in lost - self._lost_seen:  # newly lost here
+            gone[m] = max(gone.get(m, -1.0), claims[m][1] if m in claims else -1.0)  # stamps are >= 0
+        self._lost_seen = frozenset(lost)
+        for m in [m for m, s in gone.items() if m in claims and claims[m][1] > s]:
+            del gone[m]  # heard claiming again: it has rejoined
+        if not gone:
+            if self.book.released:
+                self.book.release(())
+            return
+        live = {c[0] for m, c in claims.items() if m not in gone}
+        free = {claims[m][0] for m in gone if m in claims and claims[m][0] >= 0 and not claims[m][2]}
+        self.book.release(free - live)
+
+    def claims_payload(self, t: float, d: float, at_tol: float) -> dict[str, list]:
+        """The claims table for the message, own entry first-hand (A38)."""
+        out = {m: [int(c[0]), float(c[1]), bool(c[2])] for m, c in sorted(self.claims.items())}
+        out[self.name] = [int(self.book.position), float(t), bool(d <= at_tol)]
+        return out
+
+    def take_released(self, p: np.ndarray, same: dict[str, Peer], t: float, wait_s: float) -> int | None:
+        """A robot without a position takes a released one (A38): its own row of the local
+        Hungarian problem (6.7) over the robots without a position it hears x J^a_i, once
+        J^a_i has not changed for ``wait_s``. Only after a loss (no-loss runs are unchanged)."""
+        avail = tuple(self.book.available)
+        if avail != self.avail_since[0]:
+            self.avail_since = (avail, t)
+        if not self.gone or not avail or t - self.avail_since[1] < wait_s - 1e-9:
+            return None
+        others = [q.position for q in same.values() if q.phase == UNASSIGNED]
+        return local_hungarian(p, others, self.targets, avail)
 
     def merge(self, same: dict[str, Peer]) -> None:
         """Unite the taken sets and claims the neighbours announced (ambiguity A24)."""

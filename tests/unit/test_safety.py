@@ -455,3 +455,57 @@ def test_simulator_rows_apply_exactly_what_the_model_methods_do(model):
             expect = limit_change(m, prev[n], m.saturate(c)[0], 0.1)
             np.testing.assert_allclose(w.applied[n], expect, rtol=0, atol=1e-12)
             prev[n] = expect
+
+
+def test_vectorised_tubes_and_predictions_are_the_scalar_ones_bit_for_bit():
+    """The guard computes every kept plan's tube with numpy at once and a neighbour's arc from
+    constants taken when it was heard; both must give exactly the numbers of the scalar
+    predict_position / plan_velocity / commit_radius (so the filter decides the same)."""
+    from copath.models import integrate_body_velocity  # noqa: PLC0415
+    from copath.safety import TUBE_MARGIN_M, TubeSet, commit_radius, plan_velocity, predict_position  # noqa: PLC0415
+
+    cfg = SafetyConfig(enabled=True, commit_accel_mps2=0.2, commit_speed_mps=0.05)
+    dt = 0.1
+    models = {"a": UnicycleModel(a_max=0.3, alpha_max=1.0), "b": UnicycleModel(a_max=0.3, alpha_max=1.0)}
+    g = SafetyGuard(cfg, "a", models, dt)
+    rng = np.random.default_rng(7)
+    plans = []
+    for k in range(40):
+        stamp = k * dt
+        # straight (w = 0), standing (v = 0) and turning plans
+        w = 0.0 if k % 5 == 0 else float(rng.uniform(-1.5, 1.5))
+        vel = (0.0, 0.0, w) if k % 7 == 0 else (float(rng.uniform(-0.5, 0.5)), float(rng.uniform(-0.5, 0.5)), w)
+        pos = (float(rng.uniform(-3, 3)), float(rng.uniform(-3, 3)))
+        g.published(stamp, pos, vel)
+        g.hear("b", pos, stamp, vel)
+        plans.append((stamp, pos, vel))
+        now = stamp + 0.05
+        tubes = g.tubes(now)
+        kept = [p for p in plans if now - p[0] < cfg.commit_horizon_s - 1e-9]
+        assert len(tubes) == len(kept) > 0
+        for t, (s, p, v) in zip(tubes, kept):
+            tau = now - s
+            assert t.centre == predict_position(p, v, tau)
+            assert t.velocity == plan_velocity(v, tau)
+            assert t.radius == commit_radius(cfg, tau) - TUBE_MARGIN_M
+            assert t.growth == cfg.commit_speed_mps + cfg.commit_accel_mps2 * tau
+        for nb in g.neighbours(now + 0.3):
+            if nb.predicted:
+                assert nb.position == predict_position(pos, vel, (now + 0.3) - stamp)
+        assert len(TubeSet.of(tubes)) == len(tubes) and TubeSet.of(tubes).tubes() == tubes
+    # predict_position is the closed form of the models' integrator, same numbers
+    for _ in range(200):
+        p, v, tau = rng.uniform(-3, 3, 2), rng.uniform(-1, 1, 3), float(rng.uniform(0, 3))
+        ref = integrate_body_velocity((p[0], p[1], math.atan2(v[1], v[0])), (math.hypot(v[0], v[1]), 0.0, v[2]), tau)
+        assert predict_position(p, v, tau) == (float(ref[0]), float(ref[1]))
+
+
+def test_filter_takes_tubes_as_objects_or_arrays_alike():
+    from copath.safety import Tube, TubeSet  # noqa: PLC0415
+
+    cfg = SafetyConfig(enabled=True, commit_accel_mps2=0.2)
+    f = SafetyFilter(cfg, UnicycleModel(a_max=0.3), 0.1)
+    tubes = [Tube((0.05, 0.0), (0.3, 0.0), 0.03, 0.02), Tube((0.0, 0.1), (0.0, 0.0), 0.05, 0.0)]
+    a = f.filter([0.0, 0.0, 0.0], [0.5, 0.8], (), tubes=tubes)
+    b = f.filter([0.0, 0.0, 0.0], [0.5, 0.8], (), tubes=TubeSet.of(tubes))
+    assert a.active and np.array_equal(a.command, b.command)

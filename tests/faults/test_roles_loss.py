@@ -1,0 +1,125 @@
+"""Role assignment without a lost robot (Ch. 6, Algorithm 6.2; docs/ambiguities.md, A38).
+
+E6.3 (16 robots, 12 positions) with r5's radio silent for the rest of the run and
+``run.on_robot_failure = "continue"``: the team leaves r5 out of its assignment problem,
+or releases the position r5 claimed, and a robot that had no position takes it, so the
+circle is still completed (measured on the simulator's truth) without a collision.
+In-process and seeded: each run takes a few seconds.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from agent.controllers.roles.assignment import RoleBook
+from agent.controllers.roles.phases import ASSIGNED, Assignment, Peer, PeerTable
+from orchestrator import api
+
+SCENARIO = "e6.3-roles-circle-surplus-robots"
+
+
+def _silent(start_s: float):
+    return api.run(SCENARIO, {"run.on_robot_failure": "continue",
+                              "network.silence": [{"robot": "r5", "start_s": start_s, "end_s": 1000.0}]},
+                   inprocess=True)
+
+
+def _claims(run) -> dict[str, list[tuple[float, int]]]:
+    """Per robot, (time, position index) every time it announced a claim (-1: none)."""
+    return {name: [(float(t), int(d["assigned_index"])) for t, d in zip(rt.telemetry_t, rt.telemetry)
+                   if d.get("assigned_index") is not None]
+            for name, rt in run.trace.robots.items()}
+
+
+def _final_targets(run) -> np.ndarray:
+    for rt in run.trace.robots.values():
+        for d in rt.telemetry:
+            if d.get("formation_targets"):
+                return np.asarray(d["formation_targets"], dtype=float)
+    raise AssertionError("no robot announced the formation's targets")
+
+
+def test_silent_before_the_choice_the_circle_is_completed_without_it():
+    run = _silent(2.0)  # lost at about 3 s, before anyone chose a position (about 10 s)
+    fleet = run.metrics["fleet"]
+    assert fleet["tasks_completed"] == 1
+    assert fleet["collisions"] == 0
+    claims = _claims(run)
+    assert all(pos < 0 for _, pos in claims.get("r5", []))  # r5 never heard anyone: never claimed
+    held = {pos for name, seq in claims.items() if name != "r5" and seq for _, pos in seq[-1:] if pos >= 0}
+    assert held == set(range(12))  # the other 15 hold all 12 positions between them
+    G = _final_targets(run)
+    p5 = run.poses()["r5"][-1, 1:3]
+    assert float(np.min(np.hypot(*(G - p5).T))) > 0.05  # r5 fills none of them
+
+
+def test_a_position_claimed_before_the_loss_is_taken_by_another_robot():
+    run = _silent(12.0)  # r5 claimed its position at about 9.5 s, lost at about 13 s
+    fleet = run.metrics["fleet"]
+    assert fleet["tasks_completed"] == 1
+    assert fleet["collisions"] == 0
+    claims = _claims(run)
+    before = [pos for t, pos in claims["r5"] if t < 12.0 and pos >= 0]
+    assert before, "r5 should have claimed a position before it went silent"
+    k = before[-1]
+    takers = [name for name, seq in claims.items() if name != "r5" and any(t > 12.0 and pos == k for t, pos in seq)]
+    assert takers, f"nobody took position {k} released by r5"
+    # no two live robots hold the same position at the end
+    final = [seq[-1][1] for name, seq in claims.items() if name != "r5" and seq and seq[-1][1] >= 0]
+    assert len(final) == len(set(final))
+
+
+def test_a_released_position_is_skipped_by_later_merges_until_released_no_more():
+    book = RoleBook("r1", 0, 4)
+    book.claim(0)
+    book.merge([[0, 2]], [])
+    book.release([2])  # its claimer is lost
+    assert book.available == [1, 2, 3]
+    book.merge([[0, 2]], [])  # a neighbour that has not learnt of the loss yet
+    assert book.available == [1, 2, 3]
+    book.merge([], [2])  # a live robot claims it
+    assert book.available == [1, 3]
+    book.release([0])  # own position is never released
+    assert 0 in book.taken
+
+
+def _peer(index: int, heard: float, payload: dict) -> Peer:
+    return Peer(heard=heard, age=0.0, position=np.array([float(index), 0.0]), velocity=np.zeros(2), task=0,
+                index=index, phase=ASSIGNED, payload=payload)
+
+
+def test_the_tombstone_holds_against_old_news_and_lifts_when_the_robot_claims_again():
+    roles = Assignment("r1", 0, 3, np.zeros(2), 0.0)
+    roles.take(0)
+    roles.track_claims({"r3": _peer(2, 1.0, {"claim": 2, "d": 1.0, "taken": [2]})}, frozenset(), 1.0, 0.1)
+    roles.merge({"r3": _peer(2, 1.0, {"claim": 2, "taken": [2]})})
+    assert roles.book.available == [1]
+    # r3 is lost here; r2 has not learnt of it and relays r3's old claim and taken set
+    old_news = {"claim": 1, "d": 0.5, "taken": [1, 2], "claims": {"r3": [2, 1.0, False]}}
+    roles.track_claims({"r2": _peer(1, 2.0, old_news)}, frozenset({"r3"}), 2.0, 0.1)
+    roles.merge({"r2": _peer(1, 2.0, old_news)})
+    assert roles.gone == {"r3": 1.0} and roles.book.available == [2]
+    # r2 relays a claim r3 made after it was lost here: r3 is back, the tombstone goes
+    news = dict(old_news, claims={"r3": [2, 3.0, False]})
+    roles.track_claims({"r2": _peer(1, 3.0, news)}, frozenset({"r3"}), 3.0, 0.1)
+    roles.merge({"r2": _peer(1, 3.0, news)})
+    assert roles.gone == {} and roles.book.available == []
+
+
+def test_a_lost_robot_that_stands_on_its_position_keeps_it():
+    roles = Assignment("r1", 0, 3, np.zeros(2), 0.0)
+    roles.take(0)
+    roles.track_claims({"r3": _peer(2, 1.0, {"claim": 2, "d": 0.01})}, frozenset(), 1.0, 0.1)
+    roles.merge({"r3": _peer(2, 1.0, {"claim": 2, "taken": [2]})})
+    roles.track_claims({}, frozenset({"r3"}), 2.0, 0.1)
+    assert roles.gone == {"r3": 1.0} and 2 in roles.book.taken  # its body still fills it
+
+
+def test_a_lost_robot_leaves_the_graph_at_once():
+    table = PeerTable(timeout=0.5)
+    table.peers["r2"] = Peer(heard=1.0, age=0.0, position=np.array([1.0, 2.0]), velocity=np.zeros(2), task=0,
+                             index=1, phase=0, payload={})
+    assert set(table.fresh(1.1)) == {"r2"}
+    table.ingest([], 1.2, frozenset({"r2"}))
+    assert table.fresh(1.2) == {}
+    assert [list(p) for p in table.wrecks()] == [[1.0, 2.0]]  # still an obstacle where last heard

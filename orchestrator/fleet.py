@@ -390,6 +390,7 @@ def run_fleet(scenario: Scenario, opts: RunOptions) -> RunOutcome:
                 for c in too_late:
                     logger.warning("robot %s was restarted too late to rejoin before the end; stopping it", c.name)
                 _stop(too_late)
+                gone.update(c.name for c in too_late)  # never rejoined: no closing account to wait for
                 stuck = [c.name for c in children if c.proc.poll() is None]
                 if policy != "fail":  # frozen robots the run went on without
                     gone.update(n for n in stuck if n in scenario.robot_names and n not in ready)

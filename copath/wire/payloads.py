@@ -28,7 +28,9 @@ PAYLOADS: dict[str, dict[str, str]] = {
     "hetero_cmd": {"v": "float", "omega": "float", "ref?": "floats", "xi?": "float"},
     "hetero_report": {"x": "float", "y": "float", "heading": "float"},
     # Ch. 6 roles: task-tagged state broadcast; moment consensus with edge flows
-    # (Algorithm 6.1), (6.16) z/eta, claim/taken sets and rulings [pos, winner, loser] (Alg. 6.2).
+    # (Algorithm 6.1), (6.16) z/eta, claim/taken sets and rulings [pos, winner, loser] (Alg. 6.2);
+    # claims {robot: [pos, stamp, on it]} and tombstones gone {robot: stamp} of lost robots
+    # (docs/ambiguities.md, A38).
     "role_state": {"task": "int", "index": "int", "phase": "int", "pos": "floats", "vel": "floats", "deg": "int",
                    "z": "float", "eta": "float", "claim": "int", "d": "float", "taken": "ints", "park": "floats",
                    "rulings": "any", "ac_x?": "floats", "ac_to?": "strs", "ac_a?": "floats", "ac_e?": "floats", "ac_deg?": "int",

@@ -115,6 +115,15 @@ def test_a_lost_robot_that_stands_on_its_position_keeps_it():
     assert roles.gone == {"r3": 1.0} and 2 in roles.book.taken  # its body still fills it
 
 
+def test_malformed_claims_and_tombstones_are_skipped():
+    roles = Assignment("r1", 0, 3, np.zeros(2), 0.0)
+    bad = {"claim": 1, "d": 0.5, "claims": {"r3": ["x", 1.0, True], "r4": [1, float("nan"), False], "r5": [2],
+                                            "r6": [0, 1.0, False]},
+           "gone": {"r7": "soon", "r8": float("nan"), "r9": 0.5}}
+    roles.track_claims({"r2": _peer(1, 1.0, bad)}, frozenset(), 1.0, 0.1)
+    assert set(roles.claims) == {"r2", "r6"} and roles.gone == {"r9": 0.5}
+
+
 def test_a_lost_robot_leaves_the_graph_at_once():
     table = PeerTable(timeout=0.5)
     table.peers["r2"] = Peer(heard=1.0, age=0.0, position=np.array([1.0, 2.0]), velocity=np.zeros(2), task=0,

@@ -27,6 +27,11 @@ Messages: one broadcast ``role_state`` per step (payload schema in
 (Def. 10): neighbours are the robots heard within ``neighbour_timeout_s``. No robot
 knows N. A robot that hears a neighbour already working on a later task follows it
 (the switch "induces the team to abandon the current task", Sec. 6.2.2).
+
+A robot in ``Observation.lost`` leaves the graph, the consensus and the relayed
+assignment problem at once; the position it claimed is released (a tombstone that later
+merges respect, lifted when it is heard claiming again) and a robot without a position
+takes it (docs/ambiguities.md, A38).
 """
 
 from __future__ import annotations

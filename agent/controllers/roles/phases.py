@@ -221,6 +221,28 @@ class Agreement:
 # -- phase 2: assignment and negotiation ----------------------------------------------
 
 
+def _entries(table: Any, width: int):
+    """(name, value) pairs of a relayed ``claims`` (width 3: [position, stamp, flag]) or
+    ``gone`` (width 0: a stamp) table; malformed entries are skipped, so a bad message
+    cannot stop the controller."""
+    if not isinstance(table, dict):
+        return
+    for m, e in table.items():
+        try:
+            if not isinstance(m, str):
+                continue
+            if width == 0:
+                v = float(e)
+            elif isinstance(e, list) and len(e) == width:
+                v = (int(e[0]), float(e[1]), bool(e[2]))
+            else:
+                continue
+        except (TypeError, ValueError, OverflowError):
+            continue
+        if math.isfinite(v if width == 0 else v[1]):
+            yield m, v
+
+
 class Assignment:
     """Positions of the task, this robot's claim and the negotiation (Algorithm 6.2)."""
 
@@ -356,19 +378,15 @@ class Assignment:
         """
         claims, gone = self.claims, self.gone
         for n, q in same.items():
-            table = q.payload.get("claims")
-            if isinstance(table, dict):
-                for m, e in table.items():
-                    if m == self.name or not (isinstance(e, list) and len(e) == 3):
-                        continue
-                    if m not in claims or float(e[1]) > claims[m][1]:
-                        claims[m] = (int(e[0]), float(e[1]), bool(e[2]))
+            for m, e in _entries(q.payload.get("claims"), 3):
+                if m != self.name and (m not in claims or e[1] > claims[m][1]):
+                    claims[m] = (int(e[0]), e[1], bool(e[2]))
             stamp = q.heard - q.age
             if n not in claims or stamp >= claims[n][1]:
                 claims[n] = (int(q.payload.get("claim", -1)), stamp, float(q.payload.get("d", math.inf)) <= at_tol)
-            for m, s in (q.payload.get("gone") or {}).items():
-                if m != self.name and float(s) > gone.get(m, -math.inf):
-                    gone[m] = float(s)
+            for m, e in _entries(q.payload.get("gone"), 0):
+                if m != self.name and e > gone.get(m, -math.inf):
+                    gone[m] = e
         for m in lost - self._lost_seen:  # newly lost here
             gone[m] = max(gone.get(m, -1.0), claims[m][1] if m in claims else -1.0)  # stamps are >= 0
         self._lost_seen = frozenset(lost)

@@ -217,7 +217,7 @@ class RolesController:
             self._enter_task(later, p, self._t)  # a neighbour has moved on: follow it
         same = self._same()
         roles = self.roles
-        roles.track_claims(same, obs.lost, self._t, 2 * self.cfg.arrive_tol)
+        roles.track_claims(same, obs.lost, self._t, self.cfg.R_max)
         # phase 1: agreement on the placement
         if self.cfg.relay_positions:
             roles.relay(same, self._t)
@@ -231,7 +231,7 @@ class RolesController:
         if roles.phase in (ASSIGNED, UNASSIGNED):
             waiting = self._negotiate(same, p)
         if roles.phase == UNASSIGNED:
-            pos = roles.take_released(p, same, self._t, self.cfg.gather_s)
+            pos = roles.take_released(p, self._t, self.cfg.gather_s)
             if pos is not None:
                 self._take(pos, p)
             else:
@@ -269,7 +269,7 @@ class RolesController:
             "claim": int(roles.position),
             "d": float(roles.distance(pose[:2])) if roles.phase == ASSIGNED else 1e9,
             "taken": sorted(int(k) for k in roles.book.taken),
-            "claims": roles.claims_payload(self._t, roles.distance(pose[:2]), 2 * self.cfg.arrive_tol),
+            "claims": roles.claims_payload(self._t, pose[:2], self.cfg.R_max),
             "gone": {m: float(s) for m, s in sorted(roles.gone.items())},
             "park": [float(c) for c in roles.park] if roles.park is not None else [],
         }

@@ -221,10 +221,15 @@ class Agreement:
 # -- phase 2: assignment and negotiation ----------------------------------------------
 
 
+EN_ROUTE, ON_IT, WAITING = 0, 1, 2
+"""State of a robot in the claims table (A38): heading for its position (or still agreeing),
+standing on it (within ``2 arrive_tol``), without a position."""
+
+
 def _entries(table: Any, width: int):
-    """(name, value) pairs of a relayed ``claims`` (width 3: [position, stamp, flag]) or
-    ``gone`` (width 0: a stamp) table; malformed entries are skipped, so a bad message
-    cannot stop the controller."""
+    """(name, value) pairs of a relayed ``claims`` table (width 5: [position, stamp, state,
+    x, y]) or ``gone`` table (width 0: a stamp); malformed entries are skipped, so a bad
+    message cannot stop the controller."""
     if not isinstance(table, dict):
         return
     for m, e in table.items():
@@ -233,13 +238,15 @@ def _entries(table: Any, width: int):
                 continue
             if width == 0:
                 v = float(e)
+                ok = math.isfinite(v)
             elif isinstance(e, list) and len(e) == width:
-                v = (int(e[0]), float(e[1]), bool(e[2]))
+                v = (int(e[0]), float(e[1]), int(e[2]), float(e[3]), float(e[4]))
+                ok = all(math.isfinite(c) for c in v[1:])
             else:
                 continue
         except (TypeError, ValueError, OverflowError):
             continue
-        if math.isfinite(v if width == 0 else v[1]):
+        if ok:
             yield m, v
 
 
@@ -265,10 +272,10 @@ class Assignment:
         once known and the table only grows; the message carries it as
         ``{name: [x, y]}`` (:meth:`relay`)."""
         self.known_changed = t
-        self.claims: dict[str, tuple[int, float, bool]] = {}
+        self.claims: dict[str, tuple[int, float, int, float, float]] = {}
         """Who claims what (A38): robot -> (claimed position or -1, stamp of the message that
-        said so, whether it was then at the position), the newest per robot, heard directly
-        or relayed by the neighbours (``claims``)."""
+        said so, state :data:`EN_ROUTE` / :data:`ON_IT` / :data:`WAITING`, x, y), the newest
+        per robot, heard directly or relayed by the neighbours (``claims``)."""
         self.gone: dict[str, float] = {}
         """Tombstones (A38): lost robot -> stamp of its newest claim known when it was lost;
         a claim of that robot stamped later lifts it (it was heard again)."""
@@ -378,12 +385,14 @@ class Assignment:
         """
         claims, gone = self.claims, self.gone
         for n, q in same.items():
-            for m, e in _entries(q.payload.get("claims"), 3):
+            for m, e in _entries(q.payload.get("claims"), 5):
                 if m != self.name and (m not in claims or e[1] > claims[m][1]):
-                    claims[m] = (int(e[0]), e[1], bool(e[2]))
+                    claims[m] = e
             stamp = q.heard - q.age
             if n not in claims or stamp >= claims[n][1]:
-                claims[n] = (int(q.payload.get("claim", -1)), stamp, float(q.payload.get("d", math.inf)) <= at_tol)
+                state = (WAITING if q.phase == UNASSIGNED
+                         else ON_IT if float(q.payload.get("d", math.inf)) <= at_tol else EN_ROUTE)
+                claims[n] = (int(q.payload.get("claim", -1)), stamp, state, float(q.position[0]), float(q.position[1]))
             for m, e in _entries(q.payload.get("gone"), 0):
                 if m != self.name and e > gone.get(m, -math.inf):
                     gone[m] = e
@@ -397,25 +406,30 @@ class Assignment:
                 self.book.release(())
             return
         live = {c[0] for m, c in claims.items() if m not in gone}
-        free = {claims[m][0] for m in gone if m in claims and claims[m][0] >= 0 and not claims[m][2]}
+        free = {claims[m][0] for m in gone if m in claims and claims[m][0] >= 0 and claims[m][2] != ON_IT}
         self.book.release(free - live)
 
-    def claims_payload(self, t: float, d: float, at_tol: float) -> dict[str, list]:
+    def claims_payload(self, t: float, p: np.ndarray, at_tol: float) -> dict[str, list]:
         """The claims table for the message, own entry first-hand (A38)."""
-        out = {m: [int(c[0]), float(c[1]), bool(c[2])] for m, c in sorted(self.claims.items())}
-        out[self.name] = [int(self.book.position), float(t), bool(d <= at_tol)]
+        out = {m: [c[0], c[1], c[2], c[3], c[4]] for m, c in sorted(self.claims.items())}
+        state = (WAITING if self.phase == UNASSIGNED
+                 else ON_IT if self.distance(p) <= at_tol else EN_ROUTE)
+        out[self.name] = [int(self.book.position), float(t), state, float(p[0]), float(p[1])]
         return out
 
-    def take_released(self, p: np.ndarray, same: dict[str, Peer], t: float, wait_s: float) -> int | None:
-        """A robot without a position takes a released one (A38): its own row of the local
-        Hungarian problem (6.7) over the robots without a position it hears x J^a_i, once
-        J^a_i has not changed for ``wait_s``. Only after a loss (no-loss runs are unchanged)."""
+    def take_released(self, p: np.ndarray, t: float, wait_s: float) -> int | None:
+        """A robot without a position takes a released one (A38): its own row of the
+        Hungarian problem (6.7) over the live robots without a position in its claims
+        table (relayed, so robots that do not hear each other solve the same problem) x
+        J^a_i, once J^a_i has not changed for ``wait_s``. Only after a loss (no-loss runs
+        are unchanged)."""
         avail = tuple(self.book.available)
         if avail != self.avail_since[0]:
             self.avail_since = (avail, t)
         if not self.gone or not avail or t - self.avail_since[1] < wait_s - 1e-9:
             return None
-        others = [q.position for q in same.values() if q.phase == UNASSIGNED]
+        others = [c[3:5] for m, c in sorted(self.claims.items())
+                  if m != self.name and m not in self.gone and c[2] == WAITING]
         return local_hungarian(p, others, self.targets, avail)
 
     def merge(self, same: dict[str, Peer]) -> None:

@@ -389,6 +389,8 @@ fraction of its nominal speed (chosen: whenever a barrier slows it; with 0.2 or 
 stopped", the twelve robots of the circle swap close their gaps first and jam under delay and
 loss)."""
 
+_NO_TUBES = TubeSet(np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0), np.zeros(0))
+
 _PLAN = ("stamp", "x", "y", "vx", "vy", "w", "speed", "cos_heading", "sin_heading")
 """Columns of a guard's published plans (the last three: the arc's constants)."""
 
@@ -516,20 +518,17 @@ class SafetyFilter:
         cfg = self.config
         th = float(pose[2])
         z = np.array([float(pose[0]) + self.lookahead * math.cos(th), float(pose[1]) + self.lookahead * math.sin(th)])
-        pts, dist = [], []
-        for nb in neighbours:
-            if nb.age > cfg.max_age_s:
-                continue
-            pts.append(nb.position)
-            # the predicted centre when the neighbour's velocity and acceleration limit are known
-            # (its spread is then carried by the hard centre rows only), else the heard disc
-            spread = 0.0 if nb.predicted else _spread(nb)
-            dist.append(self.r_eff + nb.radius + cfg.margin_m + spread + self.lookahead + nb.lookahead)
-        if not pts:
+        heard = [nb for nb in neighbours if nb.age <= cfg.max_age_s]
+        if not heard:
             return np.zeros((0, 2)), np.zeros(0)
-        d = z[None, :] - np.asarray(pts, dtype=float)
+        # the predicted centre when the neighbour's velocity and acceleration limit are known
+        # (its spread is then carried by the hard centre rows only), else the heard disc
+        spread = np.array([0.0 if nb.predicted else _spread(nb) for nb in heard], dtype=float)
+        dist = (self.r_eff + np.array([nb.radius for nb in heard], dtype=float) + cfg.margin_m + spread
+                + self.lookahead + np.array([nb.lookahead for nb in heard], dtype=float))
+        d = z[None, :] - np.array([nb.position for nb in heard], dtype=float)
         norm = _row_norms(d)
-        return d / np.maximum(norm, 1e-9)[:, None], norm - np.asarray(dist)
+        return d / np.maximum(norm, 1e-9)[:, None], norm - dist
 
     def barriers(self, pose, neighbours: Sequence[Neighbour], ranges=None, angles=None
                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -542,29 +541,27 @@ class SafetyFilter:
         rows), so :meth:`constraints` need not compute them again."""
         cfg = self.config
         q = np.array([float(pose[0]), float(pose[1])])
-        pts, dist, gain = [], [], []
         heard = [nb for nb in neighbours if nb.age <= cfg.max_age_s]
-        for nb in heard:
-            pts.append(nb.position)
-            dist.append(self.r_eff + nb.radius + cfg.margin_m + _spread(nb))
-            gain.append(0.5 * self.gamma)  # its share: the neighbour's filter takes the other half
+        spreads = np.array([_spread(nb) for nb in heard], dtype=float)
+        pts, dist = [], []
+        if heard:
+            pts.append(np.array([nb.position for nb in heard], dtype=float))
+            dist.append(self.r_eff + np.array([nb.radius for nb in heard], dtype=float) + cfg.margin_m + spreads)
         if cfg.use_ranges and ranges is not None and angles is not None:
             x, y, th = (float(v) for v in pose)
             r = np.asarray(ranges, dtype=float)
             hit = np.isfinite(r)
             a = th + np.asarray(angles, dtype=float)[hit]
             rr = self.model.radius + r[hit]  # readings start on the robot's rim
-            for ox, oy in zip(x + rr * np.cos(a), y + rr * np.sin(a)):
-                pts.append((ox, oy))
-                dist.append(self.r_eff + cfg.margin_m)
-                # half as well: the point may be another robot whose filter sees this one too
-                gain.append(0.5 * self.gamma)
-        if not pts:
-            return np.zeros((0, 2)), np.zeros(0), np.zeros(0), np.zeros(0), heard
-        d = q[None, :] - np.asarray(pts, dtype=float)
+            pts.append(np.stack([x + rr * np.cos(a), y + rr * np.sin(a)], axis=1))
+            dist.append(np.full(len(rr), self.r_eff + cfg.margin_m))
+        d = q[None, :] - np.concatenate(pts) if pts else np.zeros((0, 2))
         norm = _row_norms(d)
         n = d / np.maximum(norm, 1e-9)[:, None]
-        return n, norm - np.asarray(dist), np.asarray(gain), norm, heard
+        # every row takes half the gap: a neighbour's filter takes the other half, and a range
+        # point may be another robot whose filter sees this one too
+        gain = np.full(len(norm), 0.5 * self.gamma)
+        return n, norm - (np.concatenate(dist) if dist else np.zeros(0)), gain, norm, heard, spreads
 
     def _direction_error(self, pose, neighbours: Sequence[Neighbour]) -> np.ndarray:
         """kappa_j = |n - n_hat| bound for each neighbour row: 2 sin(asin(min(1, rho / d)) / 2)
@@ -592,7 +589,7 @@ class SafetyFilter:
         grown over the robot) asks only not to close in further (h clamped at 0), so stopping
         stays feasible."""
         th = float(pose[2])
-        n, h, gain, norm, heard = self._barriers(pose, neighbours, ranges, angles)
+        n, h, gain, norm, heard, spreads = self._barriers(pose, neighbours, ranges, angles)
         A = n @ self.centre_velocity_map(th)  # (k, m): n^T G(theta)
         rhs = -gain * np.maximum(h, 0.0)
         if self.config.braking and self.model.a_max is not None:
@@ -628,7 +625,7 @@ class SafetyFilter:
         # n^T pdot >= n_hat^T pdot - kappa |pdot| (docs/safety.md, "stale directions")
         kappa = np.zeros(len(h))
         if heard:  # the neighbour rows come first (as _direction_error, with the distances at hand)
-            ratio = np.minimum(1.0, np.array([_spread(nb) for nb in heard]) / np.maximum(norm[:len(heard)], 1e-9))
+            ratio = np.minimum(1.0, spreads / np.maximum(norm[:len(heard)], 1e-9))
             kappa[:len(heard)] = 2.0 * np.sin(0.5 * np.arcsin(ratio))
         if not self.omni:  # |pdot| = |v|: one row for each sign of v, exact
             K = np.zeros((len(h), 2))
@@ -857,7 +854,7 @@ class SafetyGuard:
         """:meth:`tubes` as arrays, all plans at once: the same numbers as :func:`predict_position`,
         :func:`plan_velocity` and :func:`commit_radius` per plan, operation for operation."""
         if not self._commit:
-            return TubeSet.of(())
+            return _NO_TUBES
         cfg = self._config
         P = self._plans
         tau = now - P[0]

@@ -119,7 +119,8 @@ class PeerTable:
         """Neighbours N_i at time t (computed once per step: callers must not modify it)."""
         if self._fresh is None or self._fresh[0] != t:
             lost = self.lost
-            self._fresh = (t, {n: q for n, q in self.peers.items() if t - q.heard <= self.timeout and n not in lost}, {})
+            self._fresh = (t, {n: q for n, q in self.peers.items()
+                               if t - q.heard <= self.timeout and n not in lost}, {})
         return self._fresh[1]
 
     def wrecks(self) -> list[np.ndarray]:

@@ -226,7 +226,8 @@ class Tube:
 
 @dataclass(frozen=True)
 class TubeSet:
-    """Many :class:`Tube` s as arrays (the filter's hot path: no object per plan and step)."""
+    """The tubes of committed plans (docs/safety.md, "Committed plans") as arrays, one row per
+    :class:`Tube`: the filter's hot path makes no object per plan and step."""
 
     centre: np.ndarray
     """Plan points now, (k, 2) [m]."""

@@ -67,6 +67,14 @@ __all__ = ["RolesController", "MESSAGE_KIND", "CONSENSUS", "ASSIGNED", "UNASSIGN
 logger = logging.getLogger(__name__)
 
 
+CLAIMS_EVERY = 10
+"""The relayed claims table (docs/ambiguities.md, A38) goes in every 10th ``role_state``
+(1 s at 10 Hz) while no robot is lost: a sender's own claim travels first-hand in every
+message (``claim``, ``d``, its position), and the table, 0.5 kB for 16 robots, doubled the
+cost of decoding and validating each message (36 -> 73 us) for news that is only used
+after a loss."""
+
+
 class RolesController:
     """Ch. 6 controller of one unicycle: agreement, assignment and negotiation, navigation,
     task sequencing, one state object per phase (:mod:`.phases`).
@@ -102,6 +110,8 @@ class RolesController:
         """Phase 3 of the current task."""
         self._t_prev: float | None = None
         self._t = 0.0
+        self._sent = 0
+        """Messages sent so far (the relayed claims table goes in every CLAIMS_EVERY-th)."""
 
     # ------------------------------------------------------------------ tasks
     def _enter_task(self, k: int, p: np.ndarray, t: float) -> None:
@@ -269,10 +279,14 @@ class RolesController:
             "claim": int(roles.position),
             "d": float(roles.distance(pose[:2])) if roles.phase == ASSIGNED else 1e9,
             "taken": sorted(int(k) for k in roles.book.taken),
-            "claims": roles.claims_payload(self._t, pose[:2], self.cfg.R_max),
             "gone": {m: float(s) for m, s in sorted(roles.gone.items())},
             "park": [float(c) for c in roles.park] if roles.park is not None else [],
         }
+        # the relayed claims table (A38) changes slowly and is only acted on after a loss: it
+        # goes in every CLAIMS_EVERY-th message, and in every one while a robot is lost
+        if roles.gone or self._sent % CLAIMS_EVERY == 0:
+            payload["claims"] = roles.claims_payload(self._t, pose[:2], self.cfg.R_max)
+        self._sent += 1
         # rulings are repeated for a while so a lost message does not lose them
         payload["rulings"] = roles.recent_rulings(self._t)
         if roles.targets is not None and tasks.transform is not None:

@@ -63,8 +63,9 @@ def no_jit_sources_left() -> Iterator[None]:
     """Remove the ``jit_tmp*.c`` files a build leaves in the working directory.
 
     CasADi 3.8's ``nlpsol`` writes the C source of its JIT build there, whatever the
-    compiler's ``directory`` option says, and does not remove it (measured: the file
-    survives the solver's deletion); only files that appear during the build are removed."""
+    compiler's ``directory`` option says, when it is built and when it is loaded from the
+    cache, and does not remove it (measured: the file survives the solver's deletion);
+    only files that appear during the build or load are removed."""
     before = set(glob.glob("jit_tmp*.c"))
     try:
         yield
@@ -127,7 +128,8 @@ def _load(ca, path: pathlib.Path):
     if not path.is_file():
         return None
     try:
-        fn = ca.Function.load(str(path))
+        with no_jit_sources_left():  # loading an embedded JIT solver writes its C source too
+            fn = ca.Function.load(str(path))
     except Exception as exc:
         stats["errors"] += 1
         logger.warning("cached solver %s did not load (%s); rebuilding it", path.name, exc)

@@ -40,7 +40,8 @@ def test_forgeries_and_garbage_are_rejected_counted_and_survived(tmp_path, procs
     run_id = "forge"
     keys = Keys(run_id)
     p = procs.start(["-m", "orchestrator", "run", str(config("e5.5-")), "--out", str(tmp_path), "--run-id", run_id,
-                     "--duration", "40", "--listen", loopback_endpoint(port), "-q", "--no-plots"])
+                     "--duration", "40", "--listen", loopback_endpoint(port), "-q", "--no-plots",
+                     "--no-secure"])  # an open bus: what the receivers do on their own
     with _attacker(loopback_endpoint(port)) as bad:
         _wait_for_truth(bad, keys, 20, p)
         nan_peer = PeerEnvelope("r2", 1, 0.5, "coord_state", [0.0, 0.0], {"s": 0.0, "sdot": 0.2, "s_d": 0.0}).to_dict()

@@ -35,7 +35,7 @@ def run_across_hosts(tmp_path, procs, hosts, run_id: str, duration_s: float = 40
     behind B's own router (connected to A's). Returns (orchestrator, r2) once both exited."""
     run = popen(hosts, hosts.a, ["-m", "orchestrator", "run", str(config("e5.5-")), "--out", str(tmp_path),
                                  "--run-id", run_id, "--duration", str(duration_s), "--listen", endpoint(ADDR_A),
-                                 "--external", "r2", "-q", "--no-plots"])
+                                 "--external", "r2", "-q", "--no-plots", "--no-secure"])  # a site router logs in as nobody (README)
     procs.started.append(run)
     procs.started.append(start_router(hosts, hosts.b, endpoint(ADDR_B), endpoint(ADDR_A), lease_ms=LEASE_MS))
     wait_for_file(tmp_path / "scenario.json", run)

@@ -36,7 +36,7 @@ def kill_remote_router(tmp_path, procs, hosts, policy: str, run_id: str = "route
     run = popen(hosts, hosts.a, ["-m", "orchestrator", "run", str(config("e5.5-")), "--out", str(tmp_path),
                                  "--run-id", run_id, "--duration", str(duration_s), "--listen", endpoint(ADDR_A),
                                  "--connect", endpoint(ADDR_B), *[a for n in REMOTE for a in ("--external", n)],
-                                 "--on-robot-failure", policy, "-q", "--no-plots"])
+                                 "--on-robot-failure", policy, "-q", "--no-plots", "--no-secure"])  # a site router logs in as nobody (README)
     procs.started.append(run)
     wait_for_file(tmp_path / "scenario.json", run)
     for n in REMOTE:

@@ -47,7 +47,7 @@ from tests.faults import hosts as netns  # noqa: E402
 from tests.faults.test_forgery import _attacker, _wait_for_truth  # noqa: E402
 from tests.faults.test_fuzz import _fuzz_payloads  # noqa: E402
 from tests.faults.test_netns import DROP, run_across_hosts  # noqa: E402
-from tests.faults.test_robot_failure import _victim  # noqa: E402
+from tests.faults.test_robot_failure import _unfreeze, _victim  # noqa: E402
 from tests.faults.test_router import kill_remote_router  # noqa: E402
 from tests.faults.test_secure import _session  # noqa: E402
 from tests.integration.conftest import Procs  # noqa: E402
@@ -174,11 +174,7 @@ def _robot(policy: str, sig: signal.Signals, duration: str = DURATION) -> Callab
         try:
             case.wait(p)
         finally:
-            if sig == signal.SIGSTOP:
-                try:
-                    os.kill(pid, signal.SIGKILL)
-                except ProcessLookupError:
-                    pass
+            _unfreeze(pid, sig)
     return run
 
 

@@ -35,6 +35,16 @@ def _victim(p, out, name="r3", under_way_bytes=300_000) -> int:
     return pids[0]
 
 
+def _unfreeze(pid: int, sig: int) -> None:
+    """After a fault ``sig`` sent to ``pid``: a frozen (SIGSTOP) process is killed, so nothing
+    of the test outlives it."""
+    if sig == signal.SIGSTOP:
+        try:
+            os.kill(pid, signal.SIGKILL)
+        except ProcessLookupError:
+            pass
+
+
 def _events(out, what):
     log = read_log(out / "run.mcap")
     return [(t, r) for t, _, r in log.records if getattr(r, "TYPE", "") == "event" and r.what == what]
@@ -49,11 +59,7 @@ def test_continue_goes_on_without_the_lost_robot(tmp_path, procs, sig):
     try:
         assert p.wait(timeout=240) == 0, p.stderr.read().decode()[-3000:]
     finally:
-        if sig == signal.SIGSTOP:
-            try:
-                os.kill(pid, signal.SIGKILL)
-            except ProcessLookupError:
-                pass
+        _unfreeze(pid, sig)
     m = json.loads((tmp_path / "metrics.json").read_text())
     assert m["ok"]
     lost = _events(tmp_path, "robot_lost")

@@ -12,22 +12,18 @@ import pytest
 from mcap.writer import Writer
 
 from orchestrator.cli import main as copath
-from orchestrator.inprocess import run_scenario
-from orchestrator.mcaplog import read_log, write_records
+from orchestrator.mcaplog import read_log
 from orchestrator.replay import log_info
-from copath.scenario import load_scenario
 from tests.conftest import config
+from tests.faults.conftest import E55_LOG_RUN_ID
 from tests.integration.conftest import child_pids
 
 COMMANDS = ("info", "metrics", "plot", "replay")
 
 
-@pytest.fixture(scope="module")
-def good_log(tmp_path_factory):
-    out = tmp_path_factory.mktemp("good")
-    scen = load_scenario(config("e5.5-"))
-    res = run_scenario(scen, duration_s=35.0)
-    return write_records(out / "run.mcap", res.records, scen, "files-test")
+@pytest.fixture
+def good_log(e55_log):
+    return e55_log
 
 
 def _bad_files(tmp_path, good):
@@ -79,7 +75,7 @@ def test_a_truncated_log_is_read_up_to_its_last_complete_chunk(tmp_path, good_lo
     assert [(k, r) for _, k, r in log.records] == [(k, r) for _, k, r in full.records[: len(log.records)]]
     assert log.metadata["outcome"]["ok"] == "False" and "cut short" in log.metadata["outcome"]["reason"]
     info = log_info(cut)
-    assert info["cut_short"] and info["messages"] == len(log.records) and info["run_id"] == "files-test"
+    assert info["cut_short"] and info["messages"] == len(log.records) and info["run_id"] == E55_LOG_RUN_ID
     assert copath(["metrics", str(cut), "--out", str(tmp_path / "m.json")]) == 0
     m = json.loads((tmp_path / "m.json").read_text())
     assert m["ok"] is False and "cut short" in m["failure"]

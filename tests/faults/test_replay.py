@@ -7,23 +7,17 @@ import time
 
 import pytest
 
-from copath.scenario import load_scenario
 from copath.wire.keys import Keys
 from copath.wire.session import SessionConfig, ZenohLink, free_port, loopback_endpoint
-from orchestrator.inprocess import run_scenario
-from orchestrator.mcaplog import Recorder, iter_raw, write_records
+from orchestrator.mcaplog import Recorder, iter_raw
 from orchestrator.replay import parse_wait_for
-from tests.conftest import config
 
 pytestmark = [pytest.mark.integration, pytest.mark.timeout(240)]
 
 
-@pytest.fixture(scope="module")
-def lockstep_log(tmp_path_factory):
-    out = tmp_path_factory.mktemp("replay-src")
-    scen = load_scenario(config("e5.5-"))
-    res = run_scenario(scen, duration_s=32.0)
-    return write_records(out / "run.mcap", res.records, scen, "src")
+@pytest.fixture
+def lockstep_log(e55_log):
+    return e55_log
 
 
 def test_wait_for_is_sessions_or_seconds():

@@ -32,7 +32,7 @@ from copath.paths import wrap_to_pi
 from copath.models import limit_change, world_velocity
 from copath.safety import SafetyGuard
 from copath.scenario import Scenario
-from copath.wire.faults import SILENT_AFTER_S, FaultyInbox, LinkFaults
+from copath.wire.faults import FaultyInbox, LinkFaults
 from copath.wire.keys import Keys
 from copath.wire.messages import Command, Estimate, Event, Obs, PeerEnvelope, Telemetry, WireError, to_plain
 from copath.wire.trust import RejectLog, StampWindow
@@ -111,8 +111,10 @@ class RobotRuntime:
         link) is still heard every period; it is silence, not age, that makes it lost."""
         self._told: frozenset[str] = frozenset()
         """:attr:`lost` as of the last step (its changes are events)."""
+        self._silent_after = float(scenario.run.lease_s)
+        """Silence threshold [s]: the run's transport lease, as for a frozen process."""
         self._silent: dict[str, float] = {}
-        """Senders heard before and not for ``SILENT_AFTER_S`` (a radio gone quiet): lost here,
+        """Senders heard before and not for the lease (a radio gone quiet): lost here,
         in ``Observation.lost``, until one of their messages is delivered again; the value
         is when they were last heard."""
         self._early: list[PeerEnvelope] | None = []
@@ -305,7 +307,7 @@ class RobotRuntime:
         """What this robot knows of lost robots, as events when it changes (docs/faults.md):
         ``peer_lost`` / ``peer_rejoined`` when a token went or came back (:attr:`lost`), and
         ``peer_silent`` (robot, last_heard) / ``peer_heard`` (robot, silent_from) for senders
-        heard before but not for ``SILENT_AFTER_S`` (the liveliness lease): these are lost
+        heard before but not for the run's lease (``run.lease_s``): these are lost
         here until a message of theirs is delivered again. Only this robot's inbox decides
         silence; in lockstep every message stamped before ``now`` has arrived, so the
         decision is the same in every run with the seed."""
@@ -316,7 +318,7 @@ class RobotRuntime:
         for s, t in sorted(self._heard.items()):
             if s in self.lost:  # its token went: lost already, whatever it says
                 continue
-            quiet = now - t > SILENT_AFTER_S + 1e-9
+            quiet = now - t > self._silent_after + 1e-9
             if quiet and s not in self._silent:
                 self._silent[s] = t
                 events.append(Event(float(now), self.name, "peer_silent", {"robot": s, "last_heard": float(t)}))

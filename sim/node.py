@@ -32,7 +32,7 @@ import numpy as np
 from copath.occupancy import LastFormationWatch, formations, task_tolerance
 from copath.scenario import ConfigError, Scenario, load_scenario
 from copath.wire.cli import add_config_arguments, session_config_from_args
-from copath.wire.faults import SILENT_AFTER_S, silence_outages, windows_between
+from copath.wire.faults import silence_outages, windows_between
 from copath.wire.keys import Keys
 from copath.wire.link import Link
 from copath.wire.messages import Command, End, Event, Start, Stats, Telemetry
@@ -173,7 +173,7 @@ class SimNode:
 
     def _fault_windows(self, t0: float, t1: float) -> str | None:
         """Partition and silence windows opening or closing in [t0, t1) go on the timeline as
-        events. A radio silent for the lease (``copath.wire.faults.SILENT_AFTER_S``) is a lost
+        events. A radio silent for the run's lease (``run.lease_s``) is a lost
         robot under ``run.on_robot_failure``: ``fail`` returns the run's failure reason;
         ``continue`` and ``restart`` put ``robot_lost`` and, when its radio is back,
         ``robot_rejoined`` on the timeline (``cause = "silence"``). The robot is not held: its
@@ -182,10 +182,11 @@ class SimNode:
         net = self.scenario.network
         for what, detail in windows_between(net, t0, t1):
             self._event(what, **detail)
-        for what, d in silence_outages(net, t0, t1):
+        lease = self.scenario.run.lease_s
+        for what, d in silence_outages(net, t0, t1, after_s=lease):
             if what == "silent" and self.policy == "fail":
                 return (f"robot {d['robot']} silent since t={d['start_s']:.2f} s "
-                        f"(no robot heard it for {SILENT_AFTER_S:g} s)")
+                        f"(no robot heard it for {lease:g} s)")
             self._event("robot_lost" if what == "silent" else "robot_rejoined", robot=d["robot"],
                         policy=self.policy, cause="silence", since=d["start_s"])
         return None

@@ -28,11 +28,11 @@ from copath.scenario import NetworkConfig
 __all__ = ["LinkFaults", "FaultyInbox", "Delivery", "windows_between", "silence_outages", "SILENT_AFTER_S"]
 
 SILENT_AFTER_S = 1.0
-"""A robot from which a neighbour has heard no robot-to-robot message for this long counts as
-lost there (``Observation.lost``), and a radio silence this long is handed to
-``run.on_robot_failure``: the liveliness lease (``SessionConfig.lease_ms``, 1 s), so a frozen
-process and a silent radio are found alike (docs/faults.md, "When a robot dies, freezes or
-goes quiet")."""
+"""The default of the silence threshold: a robot from which a neighbour has heard no
+robot-to-robot message for the run's transport lease (``run.lease_s``, default 1 s) counts as
+lost there (``Observation.lost``), and a radio silence that long is handed to
+``run.on_robot_failure``, so a frozen process and a silent radio are found alike, whatever
+the lease (docs/faults.md, "When a robot dies, freezes or goes quiet")."""
 
 
 def _h(name: str) -> int:

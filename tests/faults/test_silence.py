@@ -33,7 +33,22 @@ def _end(res):
 
 
 def test_the_silence_threshold_is_the_liveliness_lease():
-    assert SILENT_AFTER_S == SessionConfig(mode="peer").lease_ms / 1000.0
+    assert SILENT_AFTER_S == SessionConfig(mode="peer").lease_ms / 1000.0  # the default lease
+
+
+def test_the_silence_threshold_follows_a_longer_lease():
+    # run.lease_s = 2: a frozen process is found after 2 s, and so is a silent radio, at the
+    # simulator (fail) and at the receivers (peer_silent once nothing arrived for 2 s)
+    scen = _silent("e5.5-", "r2", 5.0, 10.0, "fail")
+    scen = dataclasses.replace(scen, run=dataclasses.replace(scen.run, lease_s=2.0))
+    res = run_scenario(scen, duration_s=20.0)
+    end = _end(res)
+    assert not end.ok and end.t == pytest.approx(7.0) and "no robot heard it for 2 s" in end.reason
+    scen = dataclasses.replace(scen, run=dataclasses.replace(scen.run, on_robot_failure="continue"))
+    res = run_scenario(scen, duration_s=12.0)
+    silent = [e for e in _events(res, "peer_silent") if e.detail["robot"] == "r2"]
+    assert silent and all(e.t - e.detail["last_heard"] > 2.0 for e in silent)
+    assert min(e.t for e in silent) > 6.9  # not after one second, as with the default lease
 
 
 def test_only_silences_longer_than_the_lease_become_losses():

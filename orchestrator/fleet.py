@@ -262,7 +262,8 @@ def run_fleet(scenario: Scenario, opts: RunOptions) -> RunOutcome:
         from .security import make_credentials, router_extra as _router_extra
 
         creds = make_credentials(out / "secrets", ["sim", *scenario.robot_names])
-        router_extra = _router_extra(creds, keys, list(scenario.robot_names))
+        router_extra = _router_extra(creds, keys, list(scenario.robot_names),
+                                     overhear=scenario.safety.enabled and scenario.safety.overhear)
     router = ZenohLink.open(SessionConfig(mode="router", listen=tuple(listen), connect=tuple(opts.connect),
                                           lease_ms=round(1e3 * scenario.run.lease_s),
                                           extra=router_extra))

@@ -26,6 +26,7 @@ from typing import Any, Callable
 from agent.node import AgentNode
 from agent.runtime import RobotRuntime
 from copath.scenario import Scenario
+from copath.wire.acl import AccessPolicy
 from copath.wire.keys import Keys
 from copath.wire.link import MemoryBus
 from copath.wire.messages import Stats
@@ -55,11 +56,14 @@ def run_scenario(scenario: Scenario, duration_s: float | None = None, run_id: st
     keys = Keys(run_id)
     dt = scenario.run.dt
     sim: SimNode | None = None
-    bus = MemoryBus(clock=lambda: sim.world.t)
+    # secure mode's access policy, whatever run.secure says: a node that steps outside its
+    # grants fails here at once, not as a stalled fleet behind a secure router
+    bus = MemoryBus(clock=lambda: sim.world.t,
+                    policy=AccessPolicy(keys, overhear=scenario.safety.enabled and scenario.safety.overhear))
     tick = None if on_tick is None else (lambda k: on_tick((k + 1) * dt, len(bus.records)))
-    sim = SimNode(scenario, keys, bus.link(), duration_s=duration_s, on_tick=tick)
+    sim = SimNode(scenario, keys, bus.link("sim"), duration_s=duration_s, on_tick=tick)
     sim.world.t = 0.0
-    agents = [AgentNode(RobotRuntime(scenario, n, keys), keys, bus.link(), "lockstep") for n in scenario.robot_names]
+    agents = [AgentNode(RobotRuntime(scenario, n, keys), keys, bus.link(n), "lockstep") for n in scenario.robot_names]
     for a in agents:
         a.start()
     try:

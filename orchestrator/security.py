@@ -3,20 +3,10 @@
 The orchestrator makes a fresh user name and random password for every process of a run
 (the simulator and each robot), writes them into the run's ``secrets/`` directory
 (readable by the owner only), and opens the run's router with Zenoh's user/password
-authentication and an access-control list that denies everything not granted:
-
-=============  =========================================================================
-process        may publish (put)                       may receive (subscribe)
-=============  =========================================================================
-``sim``        ``sim/**``, ``robot/*/obs``,            ``robot/*/cmd``, ``robot/*/telemetry``
-               ``stats/sim``
-robot ``r``    ``robot/r/cmd|telemetry|estimate``,     ``robot/r/obs``, ``sim/start``,
-               ``peer/r/**``, ``r/event``, ``stats/r`` ``sim/end``, ``peer/*/all``,
-                                                       ``peer/*/to/r``
-=============  =========================================================================
-
-Liveliness tokens: each process may declare only ``alive/<itself>`` and watch
-``alive/*``. A session without credentials, or with a wrong password, is refused when it
+authentication and an access-control list that denies everything not granted.
+The grants themselves (who may publish, subscribe to, declare and watch which keys) are
+:func:`copath.wire.acl.grants`, the one policy the router here and the in-process bus both
+enforce. A session without credentials, or with a wrong password, is refused when it
 connects; a session with a robot's credentials can do only what that robot may. The
 recorder is the router's own session, so it hears everything. Why user/password and not
 TLS, and what secure mode costs: docs/security.md.
@@ -30,6 +20,7 @@ import pathlib
 import secrets
 from dataclasses import dataclass
 
+from copath.wire.acl import grants
 from copath.wire.keys import Keys
 
 __all__ = ["RunCredentials", "make_credentials", "acl_config", "router_extra", "client_extra"]
@@ -78,24 +69,17 @@ def make_credentials(directory: pathlib.Path, procs: list[str]) -> RunCredential
     return creds
 
 
-def _grants(keys: Keys, proc: str, robots: list[str]) -> tuple[list[str], list[str]]:
-    """(keys proc may publish, keys it may subscribe to)."""
-    if proc == "sim":
-        pub = [f"{keys.prefix}/sim/**", f"{keys.prefix}/robot/*/obs", keys.stats("sim")]
-        sub = [keys.all_cmds, f"{keys.prefix}/robot/*/telemetry"]
-        return pub, sub
-    r = proc
-    pub = [keys.cmd(r), keys.telemetry(r), keys.estimate(r), f"{keys.prefix}/peer/{r}/**", keys.event(r),
-           keys.stats(r)]
-    sub = [keys.obs(r), keys.start, keys.end, f"{keys.prefix}/peer/*/all", f"{keys.prefix}/peer/*/to/{r}"]
-    return pub, sub
+def acl_config(keys: Keys, robots: list[str], overhear: bool = False) -> dict:
+    """The router's ``access_control`` block: deny by default, grant per process.
 
-
-def acl_config(keys: Keys, robots: list[str]) -> dict:
-    """The router's ``access_control`` block: deny by default, grant per process."""
+    ``overhear`` (the scenario's safety filter overhears, ``safety.overhear``): a robot may
+    also read the direct messages between other robots, whose sender positions its filter
+    uses. Without the grant the router refuses the filter's ``peer/*/to/*`` subscription as
+    a whole, and with it every peer message the robot would receive through it."""
     rules, subjects, policies = [], [], []
     for proc in ["sim", *robots]:
-        pub, sub = _grants(keys, proc, robots)
+        g = grants(keys, proc, overhear)
+        pub, sub = list(g.publish), list(g.subscribe)
         rules += [
             {"id": f"{proc}-pub", "permission": "allow", "flows": ["ingress"], "messages": _PUT, "key_exprs": pub},
             # the router tells a publisher who subscribes to its keys (else it would not send)
@@ -103,11 +87,11 @@ def acl_config(keys: Keys, robots: list[str]) -> dict:
             {"id": f"{proc}-sub", "permission": "allow", "flows": ["ingress"], "messages": _SUB, "key_exprs": sub},
             {"id": f"{proc}-recv", "permission": "allow", "flows": ["egress"], "messages": _PUT, "key_exprs": sub},
             {"id": f"{proc}-token", "permission": "allow", "flows": ["ingress"], "messages": _TOKEN,
-             "key_exprs": [keys.alive(proc)]},
+             "key_exprs": list(g.token)},
             {"id": f"{proc}-watch", "permission": "allow", "flows": ["ingress"], "messages": _WATCH,
-             "key_exprs": [keys.all_alive]},
+             "key_exprs": list(g.watch)},
             {"id": f"{proc}-seen", "permission": "allow", "flows": ["egress"], "messages": _TOKEN + ["reply"],
-             "key_exprs": [keys.all_alive]},
+             "key_exprs": list(g.watch)},
         ]
         subjects.append({"id": f"{proc}-subject", "usernames": [proc]})
         policies.append({"id": f"{proc}-policy",
@@ -116,10 +100,11 @@ def acl_config(keys: Keys, robots: list[str]) -> dict:
     return {"enabled": True, "default_permission": "deny", "rules": rules, "subjects": subjects, "policies": policies}
 
 
-def router_extra(creds: RunCredentials, keys: Keys, robots: list[str]) -> tuple[tuple[str, str], ...]:
+def router_extra(creds: RunCredentials, keys: Keys, robots: list[str],
+                 overhear: bool = False) -> tuple[tuple[str, str], ...]:
     """Zenoh config entries of the run's router in secure mode."""
     return (("transport/auth/usrpwd", json.dumps({"dictionary_file": str(creds.dictionary_file)})),
-            ("access_control", json.dumps(acl_config(keys, robots))))
+            ("access_control", json.dumps(acl_config(keys, robots, overhear))))
 
 
 def client_extra(user: str, password: str) -> tuple[tuple[str, str], ...]:

@@ -17,7 +17,10 @@ chunk, ``**`` is any number of chunks (docs/performance.md, "One lockstep protoc
 from __future__ import annotations
 
 import logging
-from typing import Any, Callable, Protocol, runtime_checkable
+from typing import TYPE_CHECKING, Any, Callable, Protocol, runtime_checkable
+
+if TYPE_CHECKING:
+    from .acl import AccessPolicy
 
 logger = logging.getLogger(__name__)
 
@@ -76,17 +79,23 @@ class MemoryBus:
     :attr:`records` as ``(log time [ns], key, record)``, like the recorder's MCAP log.
     """
 
-    def __init__(self, clock: Callable[[], float] | None = None, record: bool = True) -> None:
+    def __init__(self, clock: Callable[[], float] | None = None, record: bool = True,
+                 policy: "AccessPolicy | None" = None) -> None:
         self.clock = clock or (lambda: 0.0)
         self.record = record
+        self.policy = policy
+        """Secure mode's access policy (:mod:`copath.wire.acl`), enforced on every link
+        opened with a user name: a node stepping outside its grants raises at once."""
         self.records: list[tuple[int, str, Any]] = []
         self._subs: list[tuple[str, Callback, "MemoryLink"]] = []
         self._route: dict[str, list[tuple[Callback, "MemoryLink"]]] = {}
         self._tokens: set[str] = set()
         self._watchers: list[tuple[str, Callable[[str, bool], None]]] = []
 
-    def link(self) -> "MemoryLink":
-        return MemoryLink(self)
+    def link(self, user: str | None = None) -> "MemoryLink":
+        """A node's link; ``user`` (``sim`` or a robot name) is checked against the bus's
+        policy, like the process of that name behind a secure router."""
+        return MemoryLink(self, user if self.policy is not None else None)
 
     def _subscribe(self, expr: str, callback: Callback, link: "MemoryLink") -> None:
         self._subs.append((expr, callback, link))
@@ -127,8 +136,10 @@ class MemoryLink:
 
     synchronous = True
 
-    def __init__(self, bus: MemoryBus) -> None:
+    def __init__(self, bus: MemoryBus, user: str | None = None) -> None:
         self.bus = bus
+        self.user = user
+        """Checked against ``bus.policy`` (None: unchecked)."""
         self.published = 0
         self.rejects = 0
         self._tokens: list[str] = []
@@ -141,17 +152,25 @@ class MemoryLink:
         self.close()
 
     def publish(self, key: str, record: Any) -> None:
+        if self.user is not None:
+            self.bus.policy.check(self.user, "publish", key)
         self.published += 1
         self.bus._deliver(key, record)
 
     def subscribe(self, key_expr: str, callback: Callback) -> None:
+        if self.user is not None:
+            self.bus.policy.check(self.user, "subscribe", key_expr)
         self.bus._subscribe(key_expr, callback, self)
 
     def declare_token(self, key: str) -> None:
+        if self.user is not None:
+            self.bus.policy.check(self.user, "token", key)
         self._tokens.append(key)
         self.bus._token(key, True)
 
     def watch_liveliness(self, key_expr: str, callback: Callable[[str, bool], None]) -> None:
+        if self.user is not None:
+            self.bus.policy.check(self.user, "watch", key_expr)
         self.bus._watch(key_expr, callback)
 
     def close(self) -> None:

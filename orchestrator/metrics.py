@@ -98,6 +98,9 @@ FLEET_KEYS = (
     "deadline_misses",
     "deadline_miss_rate",
     "physics_overruns",
+    # a leader-following team (Sec. 5.3): who led from when, [[t, robot], ...], by the
+    # succession rule on the simulator's loss events; null for other teams (docs/metrics.md, M3)
+    "leaders",
 )
 METRIC_KEYS = {"robots": ROBOT_KEYS, "fleet": FLEET_KEYS}
 

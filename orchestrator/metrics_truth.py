@@ -9,7 +9,11 @@ lemniscate); the team's desired geometry turns those path coordinates into
 - a coordination coordinate xi_i per robot: robots are coordinated when all xi agree
   (modulo the period on a shared closed path), as in the controllers' own laws;
 - a reference coordinate xi_ref of the team: the leader's xi where the formation is
-  defined relative to a leader (Sec. 5.3, Sec. 5.5.5), the mean of all xi otherwise;
+  defined relative to a leader (Sec. 5.3, Sec. 5.5.5), the mean of all xi otherwise. A
+  leader-following team whose leader is lost goes on under a new one (docs/faults.md, "A
+  new leader"): who leads when is decided from the losses the simulator recorded
+  (:func:`leader_sequence`), and xi_ref is then recovered from the new leader's true
+  position and its slot; lost robots are not graded while they are lost;
 - each robot's slot at xi_ref (a point of its offset curve), so the formation error of a
   robot is the distance from its true position to that slot;
 - the formation changes under way at xi_ref: the scheduled quintic transitions
@@ -36,7 +40,8 @@ from __future__ import annotations
 
 import itertools
 import logging
-from dataclasses import dataclass
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
 from typing import Any, Callable
 
 import numpy as np
@@ -51,7 +56,7 @@ from .figures import json_number as _f
 logger = logging.getLogger(__name__)
 
 __all__ = ["TeamGeometry", "TruthSeries", "team_geometry", "truth_series", "truth_metrics", "cross_track_series",
-           "FAMILIES"]
+           "FAMILIES", "leader_sequence", "outages"]
 
 
 @dataclass
@@ -61,8 +66,9 @@ class TeamGeometry:
     family: str
     paths: dict[str, Path]
     """Path each robot's true position is projected onto."""
-    xi: Callable[[dict[str, np.ndarray]], dict[str, np.ndarray]]
-    """{robot: s (T,)} -> {robot: xi (T,)}."""
+    xi: Callable[..., dict[str, np.ndarray]]
+    """{robot: s (T,)} -> {robot: xi (T,)}. A team with a :attr:`succession` also takes
+    ``ref``, the team's reference coordinate C (T,) (default: the first leader's s)."""
     slots: Callable[[np.ndarray], dict[str, np.ndarray]]
     """xi_ref (T,) -> {robot: slot position (T, 2)} (robots that hold a slot)."""
     in_transition: Callable[[np.ndarray], np.ndarray]
@@ -71,8 +77,16 @@ class TeamGeometry:
     """Period of xi (a shared closed path's length) or 0."""
     leader: str | None = None
     """The robot whose xi is the team's reference, or None for the mean."""
-    lateral: Callable[[dict[str, np.ndarray]], dict[str, np.ndarray]] | None = None
-    """{robot: s (T,)} -> {robot: desired lateral offset q (T,)} from its path; None: 0."""
+    lateral: Callable[..., dict[str, np.ndarray]] | None = None
+    """{robot: s (T,)} -> {robot: desired lateral offset q (T,)} from its path; None: 0.
+    Takes ``ref`` as :attr:`xi` does."""
+    succession: tuple[str, ...] = ()
+    """A team that elects a new leader when its leader is lost (Sec. 5.3; docs/faults.md,
+    "A new leader"): its members in the scenario's robot order, the first one the first
+    leader. Empty: the leader never changes and no robot is left ungraded."""
+    reference: Callable[[str, np.ndarray], np.ndarray] | None = None
+    """(robot, its path coordinate s (T,)) -> the team's reference coordinate C (T,) it
+    stands for as leader: it keeps its slot, s = C + p(C)."""
 
 
 def _params(scenario: Scenario, cls, name: str):
@@ -125,19 +139,30 @@ def _leader_following(scenario: Scenario) -> TeamGeometry:
     paths = {r.name: path for r in scenario.robots}
     schedule = _params(scenario, FollowerConfig, followers[0]).formation_schedule(f"robots.{followers[0]}.controller")
 
-    def xi(S):
-        out = {leader: S[leader]}
-        for f in followers:
-            p = schedule.offsets(f, S[leader])[0]
-            out[f] = S[f] - p
+    succession = tuple(r.name for r in scenario.robots if r.name == leader or r.name in followers)
+
+    def xi(S, ref=None):
+        # every member's s less its offset p at C: the first leader's is 0 (it is C),
+        # so without ``ref`` (C = the first leader's s) this is the leader's s itself
+        c = S[leader] if ref is None else ref
+        out = {leader: S[leader]} if ref is None else {}
+        for n in succession:
+            if n in S and n not in out:
+                out[n] = S[n] - schedule.offsets(n, c)[0]
         return out
 
     def slots(x):
+        # the first leader's slot is C itself (offsets zero): it is the reference while it
+        # leads, and where it goes when it comes back to follow a newer leader
         out = {}
-        for f in followers:
-            p, _, _, q, _, _ = schedule.offsets(f, x)
-            out[f] = offset_points(path, x + p, q)
+        for n in succession:
+            p, _, _, q, _, _ = schedule.offsets(n, x)
+            out[n] = offset_points(path, x + p, q)
         return out
+
+    def reference(n, s):
+        # C with C + p_n(C) = s: the fixed point C <- s - p_n(C) (|p_n'| < 1 in a quintic change)
+        return solve_coordinate(s, lambda c: -schedule.offsets(n, c)[0])
 
     def in_transition(x):
         x = np.asarray(x, dtype=float)
@@ -146,15 +171,17 @@ def _leader_following(scenario: Scenario) -> TeamGeometry:
             mask |= (x >= w.s_start) & (x <= w.s_end)
         return mask
 
-    def lateral(S):
+    def lateral(S, ref=None):
+        c = S[leader] if ref is None else ref
         out = {n: np.zeros(np.shape(S[n])) for n in S}
         for f in followers:
             if f in S:
-                out[f] = schedule.offsets(f, S[leader])[3]
+                out[f] = schedule.offsets(f, c)[3]
         return out
 
     return TeamGeometry("leader_following", paths, xi, slots, in_transition,
-                        period=path.length if path.closed else 0.0, leader=leader, lateral=lateral)
+                        period=path.length if path.closed else 0.0, leader=leader, lateral=lateral,
+                        succession=succession, reference=reference)
 
 
 def _heterogeneous(scenario: Scenario) -> TeamGeometry:
@@ -253,10 +280,104 @@ class TruthSeries:
     xi: dict[str, np.ndarray]
     xi_ref: np.ndarray
     coordination_error: np.ndarray | None
-    """Max over the scored pairs of |xi_i - xi_j| (modulo the period) [m]."""
+    """Max over the scored pairs of |xi_i - xi_j| (modulo the period) [m]; NaN at a tick
+    where no pair is graded."""
     formation_error: dict[str, np.ndarray]
-    """Distance of each slot-holding robot from its slot at xi_ref [m]."""
+    """Distance of each slot-holding robot from its slot at xi_ref [m]; NaN while it is not
+    graded (lost, or leading a team with a succession)."""
     in_transition: np.ndarray
+    leaders: list[tuple[float, str]] | None = None
+    """Who led, from when: [(t, robot), ...] (a team with a succession), else None."""
+    lost: dict[str, np.ndarray] = field(default_factory=dict)
+    """(T,) True while a robot was lost (a team with a succession; robots ever lost only)."""
+    rejoining: dict[str, np.ndarray] = field(default_factory=dict)
+    """(T,) True from a lost robot's return until it is within ``formation_tolerance_m`` of
+    its slot (robots that came back only): its formation errors count as a change, and its
+    coordination pairs are not scored."""
+
+
+def outages(events: Iterable) -> list[tuple[float, str, bool]]:
+    """(t, robot, lost) of the simulator's ``robot_lost`` (True) and ``robot_rejoined``
+    (False) events, in time order: the losses on record (docs/faults.md, "When a robot
+    dies, freezes or goes quiet"), never what a controller says."""
+    out = [(float(e.t), str(e.detail.get("robot")), e.what == "robot_lost") for e in events
+           if e.source == "sim" and e.what in ("robot_lost", "robot_rejoined")]
+    return sorted(out, key=lambda o: o[0])
+
+
+def leader_sequence(succession: Sequence[str], lost: Iterable[tuple[float, str, bool]],
+                    t0: float = 0.0) -> list[tuple[float, str]]:
+    """Who leads a Sec. 5.3 team from when, [(t, robot), ...] from ``t0``, by the
+    succession rule of docs/faults.md ("A new leader") applied to the losses on record.
+
+    ``succession`` is the team in the scenario's robot order; ``lost`` holds (t, robot,
+    True) for a loss and (t, robot, False) for a return (:func:`outages`). The first robot
+    leads; when the robot leading is lost, the first robot of ``succession`` not lost at
+    that instant leads. A robot that comes back does not take the lead back (it follows
+    the leader of the higher term); like every member it leads again only by this rule,
+    when the leader of the time is lost and it comes first. No one is elected while fewer
+    than two members are left: a member that has lost every other member elects no one.
+    Records of one instant are applied together (the members see them at the same step).
+    """
+    if not succession:
+        return []
+    leader = succession[0]
+    seq = [(float(t0), leader)]
+    gone: set[str] = set()
+    for t, group in itertools.groupby(sorted(lost, key=lambda o: o[0]), key=lambda o: o[0]):
+        for _, robot, is_lost in group:
+            (gone.add if is_lost else gone.discard)(robot)
+        left = [r for r in succession if r not in gone]
+        if leader in gone and len(left) >= 2:
+            leader = left[0]
+            seq.append((float(t), leader))
+    return seq
+
+
+def _spans(t: np.ndarray, seq: list[tuple[float, str]]):
+    """(robot, (T,) mask) of each entry of a leader sequence: from its time to the next."""
+    for k, (t_k, n) in enumerate(seq):
+        t_next = seq[k + 1][0] if k + 1 < len(seq) else np.inf
+        yield n, (t >= t_k - 1e-9) & (t < t_next - 1e-9)
+
+
+def _lost_masks(t: np.ndarray, lost: list[tuple[float, str, bool]], names: list[str]) -> dict[str, np.ndarray]:
+    """(T,) True while each robot ever lost was lost (from its loss to its return)."""
+    masks: dict[str, np.ndarray] = {}
+    since: dict[str, float] = {}
+    for t_e, n, is_lost in lost:
+        if n not in names:
+            continue
+        m = masks.setdefault(n, np.zeros(len(t), dtype=bool))
+        if is_lost and n not in since:
+            since[n] = t_e
+        elif not is_lost and n in since:
+            m |= (t >= since.pop(n) - 1e-9) & (t < t_e - 1e-9)
+    for n, t_l in since.items():
+        masks[n] |= t >= t_l - 1e-9
+    return {n: m for n, m in masks.items() if m.any()}
+
+
+def _reference(geo: TeamGeometry, S: dict[str, np.ndarray], t: np.ndarray,
+               seq: list[tuple[float, str]]) -> np.ndarray:
+    """The team's C on every tick from the leader of the time: its s less its slot offset
+    (it keeps its slot, docs/faults.md "A new leader"), each span moved to the lap of the
+    one before so C stays continuous on a closed path."""
+    ref = np.full(len(t), np.nan)
+    prev = None
+    for n, span in _spans(t, seq):
+        if not span.any() or n not in S:
+            continue
+        c = np.asarray(geo.reference(n, S[n][span]), dtype=float)
+        if prev is not None and geo.period > 0:
+            c = c + geo.period * np.round((prev - c[0]) / geo.period)
+        ref[span], prev = c, c[-1]
+    return ref
+
+
+def _worst(errors) -> np.ndarray:
+    """Largest error over robots at each tick, NaN only where every robot's is."""
+    return np.fmax.reduce(np.asarray(list(errors), dtype=float), axis=0)
 
 
 def _pairs(scenario: Scenario, names: list[str]) -> list[tuple[str, str]]:
@@ -266,7 +387,15 @@ def _pairs(scenario: Scenario, names: list[str]) -> list[tuple[str, str]]:
 
 
 def truth_series(trace, scenario: Scenario, geometry: TeamGeometry | None = None) -> TruthSeries | None:
-    """Coordination and formation series from the true poses of ``trace``."""
+    """Coordination and formation series from the true poses of ``trace``.
+
+    A team with a succession (Sec. 5.3) is measured from the leader it has at each tick
+    (:func:`leader_sequence` on the trace's loss events): C from the leader's true
+    position and its slot, no formation error for the robot leading (it defines C; its
+    lateral error is its cross-track error) and none for a robot while it is lost (held
+    still, or cut off). A robot that comes back is graded again at once, its errors
+    counting as a formation change (and its coordination pairs left out) until it is
+    within ``formation_tolerance_m`` of its slot."""
     geo = geometry or team_geometry(scenario)
     if geo is None:
         return None
@@ -276,22 +405,62 @@ def truth_series(trace, scenario: Scenario, geometry: TeamGeometry | None = None
     T = min(len(trace.robots[n].t) for n in names)
     t = trace.robots[names[0]].t[:T]
     S = {n: track_coordinate(geo.paths[n], trace.robots[n].pose[:T, :2]) for n in names}
-    XI = geo.xi(S)
-    first = XI[geo.leader] if geo.leader in XI else XI[names[0]]
-    # xi of every robot moved to the lap of the first one, so a mean is meaningful
-    near = {n: first + wrap_near(XI[n] - first, geo.period) for n in names}
-    xi_ref = first if geo.leader in XI else np.mean([near[n] for n in names], axis=0)
+    leaders, lost = None, {}
+    if geo.succession:
+        gone = outages(getattr(trace, "events", None) or ())
+        leaders = leader_sequence(geo.succession, gone, float(t[0]))
+        lost = _lost_masks(t, gone, names)
+    if leaders is not None and len(leaders) > 1:
+        xi_ref = _reference(geo, S, t, leaders)
+        XI = geo.xi(S, ref=xi_ref)
+    else:
+        XI = geo.xi(S)
+        first = XI[geo.leader] if geo.leader in XI else XI[names[0]]
+        # xi of every robot moved to the lap of the first one, so a mean is meaningful
+        near = {n: first + wrap_near(XI[n] - first, geo.period) for n in names}
+        xi_ref = first if geo.leader in XI else np.mean([near[n] for n in names], axis=0)
+    slots = geo.slots(xi_ref)
+    form = {n: np.hypot(*(trace.robots[n].pose[:T, :2] - P).T) for n, P in slots.items() if n in S}
+    skip = {n: m.copy() for n, m in lost.items()}
+    for n, span in _spans(t, leaders or ([(float(t[0]), geo.leader)] if geo.leader else [])):
+        skip[n] = skip[n] | span if n in skip else span
+    for n in list(form):
+        if n in skip and skip[n].all():
+            del form[n]
+        elif n in skip and skip[n].any():
+            form[n] = np.where(skip[n], np.nan, form[n])
+    tol = float(scenario.metrics["formation_tolerance_m"])
+    rejoining = {}
+    for n, m in lost.items():
+        back = np.nonzero(m[:-1] & ~m[1:])[0] + 1
+        if n in form and len(back):
+            rejoining[n] = _returning(back, form[n], tol)
     pairs = _pairs(scenario, names)
     coord = None
     if pairs:
-        coord = np.max([np.abs(wrap_near(XI[a] - XI[b], geo.period)) for a, b in pairs], axis=0)
-    slots = geo.slots(xi_ref)
-    form = {n: np.hypot(*(trace.robots[n].pose[:T, :2] - P).T) for n, P in slots.items() if n in S}
+        errs = [np.abs(wrap_near(XI[a] - XI[b], geo.period)) for a, b in pairs]
+        out = {n: lost.get(n, False) | rejoining.get(n, False) for n in set(lost) | set(rejoining)}
+        if out:
+            none = np.zeros(T, dtype=bool)
+            errs = [np.where(out.get(a, none) | out.get(b, none), np.nan, e) for (a, b), e in zip(pairs, errs)]
+            coord = _worst(errs)
+        else:
+            coord = np.max(errs, axis=0)
     moving = np.asarray(geo.in_transition(xi_ref), dtype=bool)
     if form and moving.any():
-        tol = float(scenario.metrics["formation_tolerance_m"])
-        moving = _until_arrived(moving, np.max(list(form.values()), axis=0), tol)
-    return TruthSeries(t, S, XI, xi_ref, coord, form, moving)
+        settled = [np.where(rejoining[n], np.nan, e) if n in rejoining else e for n, e in form.items()]
+        moving = _until_arrived(moving, _worst(settled), tol)
+    return TruthSeries(t, S, XI, xi_ref, coord, form, moving, leaders, lost, rejoining)
+
+
+def _returning(back: np.ndarray, error: np.ndarray, tol: float) -> np.ndarray:
+    """(T,) True from each return (tick indices ``back``) of a robot until its ``error``
+    is within ``tol`` (to the end if it never is)."""
+    out = np.zeros(len(error), dtype=bool)
+    for k in back:
+        arrived = np.nonzero(error[k:] <= tol)[0]
+        out[k:k + arrived[0] if len(arrived) else len(out)] = True
+    return out
 
 
 def _until_arrived(window: np.ndarray, error: np.ndarray, tol: float) -> np.ndarray:
@@ -308,26 +477,34 @@ def _until_arrived(window: np.ndarray, error: np.ndarray, tol: float) -> np.ndar
 
 def truth_metrics(trace, scenario: Scenario, series: TruthSeries | None = None) -> dict[str, Any]:
     """Fleet keys from the truth: coordination_error_max_m / _rms_m, formation_error_max_m
-    (outside formation changes) and formation_error_transition_max_m (during them), all
-    after ``run.settle_s``; None where the team has no such geometry."""
+    (outside formation changes) and formation_error_transition_max_m (during them, and
+    while a robot that came back returns to its slot), all after ``run.settle_s`` and over
+    the robots graded at each tick; ``leaders`` ([[t, robot], ...], who led from when, for
+    a team with a succession); None where the team has no such geometry."""
     out: dict[str, Any] = dict.fromkeys(("coordination_error_max_m", "coordination_error_rms_m",
-                                         "formation_error_max_m", "formation_error_transition_max_m"))
+                                         "formation_error_max_m", "formation_error_transition_max_m", "leaders"))
     ser = series if series is not None else truth_series(trace, scenario)
     if ser is None:
         return out
+    if ser.leaders is not None:
+        out["leaders"] = [[_f(t), n] for t, n in ser.leaders]
     after = ser.t >= scenario.run.settle_s - 1e-9
     if ser.coordination_error is not None and after.any():
         e = ser.coordination_error[after]
-        out["coordination_error_max_m"] = _f(e.max())
-        out["coordination_error_rms_m"] = _f(np.sqrt(np.mean(e**2)))
+        e = e[~np.isnan(e)]
+        if len(e):
+            out["coordination_error_max_m"] = _f(e.max())
+            out["coordination_error_rms_m"] = _f(np.sqrt(np.mean(e**2)))
     if ser.formation_error:
-        fe = np.max(list(ser.formation_error.values()), axis=0)
-        steady = after & ~ser.in_transition
-        moving = after & ser.in_transition
-        if steady.any():
-            out["formation_error_max_m"] = _f(fe[steady].max())
-        if moving.any():
-            out["formation_error_transition_max_m"] = _f(fe[moving].max())
+        E = np.array(list(ser.formation_error.values()))  # (robots, T)
+        none = np.zeros(len(ser.t), dtype=bool)
+        change = ser.in_transition[None, :] | np.array([ser.rejoining.get(n, none) for n in ser.formation_error])
+        graded = after[None, :] & ~np.isnan(E)
+        steady, moving = E[graded & ~change], E[graded & change]
+        if len(steady):
+            out["formation_error_max_m"] = _f(steady.max())
+        if len(moving):
+            out["formation_error_transition_max_m"] = _f(moving.max())
     return out
 
 
@@ -338,7 +515,10 @@ def cross_track_series(trace, scenario: Scenario, geometry: TeamGeometry | None 
 
     The lateral offset is (p - r(s)) . n(s) at the projection s of the true position; the
     desired one is the robot's offset q (5.10) (zero for a robot on its path). ``series``
-    lends its path coordinates (the same projection) when it has them."""
+    lends its path coordinates (the same projection) when it has them, and, after a new
+    leader was elected, the team's C from the leader of the time (the followers' q are
+    scheduled on C); a lost robot's desired q is held at its value at the loss (it is held
+    still, or cut off from the team's C)."""
     geo = geometry if geometry is not None else team_geometry(scenario)
     paths = dict(geo.paths) if geo is not None else {r.name: scenario.paths[r.path] for r in scenario.robots if r.path}
     S, P = {}, {}
@@ -351,7 +531,14 @@ def cross_track_series(trace, scenario: Scenario, geometry: TeamGeometry | None 
         S[n] = known if known is not None and len(known) == len(P[n]) else track_coordinate(path, P[n])
     if not S:
         return {}
-    if geo is not None and geo.lateral is not None and (geo.leader is None or geo.leader in S):
+    elected = (series is not None and series.leaders is not None and len(series.leaders) > 1
+               and all(len(v) == len(series.xi_ref) for v in S.values()))
+    if geo is not None and geo.lateral is not None and elected:
+        q = geo.lateral(S, ref=series.xi_ref)
+        for n, m in series.lost.items():
+            if n in q:  # held at the last tick before each loss
+                q[n] = q[n][np.maximum.accumulate(np.where(m, 0, np.arange(len(m))))]
+    elif geo is not None and geo.lateral is not None and (geo.leader is None or geo.leader in S):
         q = geo.lateral(S)
     else:
         q = {n: np.zeros(len(S[n])) for n in S}

@@ -35,22 +35,21 @@ def _scenario(sensors: bool = False):
     return dataclasses.replace(scen, sensors=dataclasses.replace(scen.sensors, enabled=True)) if sensors else scen
 
 
-@pytest.fixture(scope="module")
-def killed():
-    """E5.1 in one process for 30 s; the leader's process goes away at T_KILL (its link
-    closes: its token disappears and it answers no more observations, like SIGKILL)."""
-    scen = _scenario(sensors=True)
+def run_killed(scen, duration_s: float = 30.0, t_kill: float = T_KILL):
+    """Run ``scen`` in one process; the leader's process goes away at ``t_kill`` (its link
+    closes: its token disappears and it answers no more observations, like SIGKILL).
+    Returns (scenario, keys, records, trace)."""
     keys = Keys("election")
     sim = None
     bus = MemoryBus(clock=lambda: sim.world.t)
     agents = {n: AgentNode(RobotRuntime(scen, n, keys), keys, bus.link(), "lockstep") for n in scen.robot_names}
-    k_kill = int(round(T_KILL / scen.run.dt))
+    k_kill = int(round(t_kill / scen.run.dt))
 
     def tick(k):
         if k == k_kill:
             agents["leader"].link.close()
 
-    sim = SimNode(scen, keys, bus.link(), duration_s=30.0, on_tick=tick)
+    sim = SimNode(scen, keys, bus.link(), duration_s=duration_s, on_tick=tick)
     for a in agents.values():
         a.start()
     try:
@@ -61,6 +60,12 @@ def killed():
         sim.link.close()
     assert ok
     return scen, keys, bus.records, trace_from_records(bus.records, keys)
+
+
+@pytest.fixture(scope="module")
+def killed():
+    """E5.1 in one process for 30 s, range sensors on; the leader is lost at T_KILL."""
+    return run_killed(_scenario(sensors=True))
 
 
 def _plans(records, sender):

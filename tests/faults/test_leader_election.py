@@ -19,7 +19,9 @@ from copath.wire.link import MemoryBus
 from copath.wire.messages import PeerEnvelope
 from agent.controllers.leader_following import FollowerConfig, follower_reference
 from copath.config import from_table
-from orchestrator.metrics import trace_from_records
+from copath.slots import wrap_near
+from orchestrator.metrics import compute_metrics, trace_from_records
+from orchestrator.metrics_truth import truth_series
 from sim.node import SimNode
 from tests.conftest import config
 
@@ -77,6 +79,26 @@ def _plans(records, sender):
     return [seen[k] for k in sorted(seen)]
 
 
+def _schedule(scen):
+    return from_table(FollowerConfig, scen.robot("f2").params, "f2").formation_schedule("f2")
+
+
+def _slot_errors_from_plans(scen, records, trace, name, after: float = T_KILL + 10.0):
+    """By hand, from the truth and the new leader's plans: (ticks, C, distance of ``name``
+    from its slot at C, steady) at ``name``'s steps from ``after`` on, C interpolated
+    from f1's plans (its s_l) and the slot the follower's reference at C (Sec. 5.3)."""
+    plans = _plans(records, "f1")
+    t_c, s_c = np.array([p[0] for p in plans]), np.array([p[1] for p in plans])
+    rt = trace.robots[name]
+    tt = np.array(rt.telemetry_t)
+    tt = tt[(tt > after) & (tt <= t_c[-1])]
+    sc = np.interp(tt, t_c, s_c)
+    sched = _schedule(scen)
+    ref = follower_reference(scen.paths["main"].table(), sched, name, sc, np.ones_like(sc))
+    steady = ~np.array([sched.in_transition(v) for v in sc])
+    return tt, sc, np.hypot(*(rt.pose_at(tt)[:, :2] - ref.pose[:, :2]).T), steady
+
+
 def test_the_first_surviving_follower_leads_and_the_team_keeps_its_formation(killed):
     scen, keys, records, trace = killed
     events = [r for _, _, r in records if getattr(r, "TYPE", "") == "event" and r.what == "robot_lost"]
@@ -98,17 +120,12 @@ def test_the_first_surviving_follower_leads_and_the_team_keeps_its_formation(kil
     assert abs(plans[0][1] - (last[1] + 0.4 * (plans[0][0] - last[0]))) < 0.05
     # after re-convergence: f1 and f2 in their slots from f1's C, on their offset curves
     path = scen.paths["main"]
-    sched = from_table(FollowerConfig, scen.robot("f2").params, "f2").formation_schedule("f2")
-    t_c, s_c = np.array([p[0] for p in plans]), np.array([p[1] for p in plans])
+    sched = _schedule(scen)
     for name in ("f1", "f2"):
-        rt = trace.robots[name]
-        tt = np.array(rt.telemetry_t)
-        tt = tt[(tt > T_KILL + 10.0) & (tt <= t_c[-1])]
-        sc = np.interp(tt, t_c, s_c)
+        tt, sc, err, steady = _slot_errors_from_plans(scen, records, trace, name)
+        pose = trace.robots[name].pose_at(tt)
         ref = follower_reference(path.table(), sched, name, sc, np.ones_like(sc))
-        pose = rt.pose_at(tt)
-        steady = ~np.array([sched.in_transition(v) for v in sc])
-        formation_err = np.hypot(*(pose[:, :2] - ref.pose[:, :2]).T)[steady]
+        formation_err = err[steady]
         q = sched.offsets(name, sc)[3]
         lateral = np.array([np.min(np.hypot(*(path.pos(np.linspace(v - 0.6, v + 0.6, 241)) - p[:2]).T))
                             for v, p in zip(ref.s_i, pose)])
@@ -121,6 +138,39 @@ def test_the_first_surviving_follower_leads_and_the_team_keeps_its_formation(kil
     for a, b in (("f1", "leader"), ("f2", "leader"), ("f1", "f2")):
         d = np.hypot(*(trace.robots[a].pose_at(tt)[:, :2] - trace.robots[b].pose_at(tt)[:, :2]).T)
         assert d.min() >= 0.4, (a, b, d.min())
+
+
+def test_the_truth_metrics_measure_the_team_from_the_new_leader(killed):
+    """metrics.json after the election agrees with the hand measurement above. The truth
+    places C at f1's true path coordinate less its slot offset, the hand measurement at
+    f1's plans (s_l): the two differ by f1's along-track tracking error dC. f2's slot
+    o(C + p(C), q(C)) moves with C by at most ((1 + |p'|)(1 + |q| kappa_max) + |q'|) |dC|
+    ((5.1)-(5.3), (5.10)), so f2's two errors differ by at most that much at each tick."""
+    scen, keys, records, trace = killed
+    m = compute_metrics(trace, scen, run_id="election", clock="lockstep", wall_time_s=0.0,
+                        messages_published=None, messages_recorded=None)["fleet"]
+    assert m["leaders"] == [[0.0, "leader"], [pytest.approx(T_KILL, abs=0.1), "f1"]]
+    # before, C stayed with the stopped leader: coordination 6.0 m, formation 2.4 m in this run
+    assert m["coordination_error_max_m"] < 0.1 and m["formation_error_max_m"] < 0.05
+    path = scen.paths["main"]
+    ser = truth_series(trace, scen)
+    tt, sc, hand, _ = _slot_errors_from_plans(scen, records, trace, "f2")
+    k = np.searchsorted(ser.t, tt - 1e-9)
+    assert np.allclose(ser.t[k], tt)  # f2 steps on every tick: the same instants
+    d_c = np.abs(wrap_near(ser.xi_ref[k] - sc, path.length))
+    assert d_c.max() < 0.005  # f1 keeps its slot: C within mm of its plans
+    _, dp, _, q, dq, _ = _schedule(scen).offsets("f2", np.concatenate([sc, ser.xi_ref[k]]))
+    kappa_max = float(np.max(np.abs(path.kappa(np.linspace(0.0, path.length, 4000)))))
+    lipschitz = float(np.max((1.0 + np.abs(dp)) * (1.0 + np.abs(q) * kappa_max) + np.abs(dq)))
+    bound = lipschitz * d_c.max() + 1e-6
+    assert np.abs(ser.formation_error["f2"][k] - hand).max() <= bound
+    # metrics.json over the same span (settle_s = T_KILL + 10 s): f2 is the one robot graded
+    # (f1 leads, so it defines C; the leader is lost), steady and during the column change
+    late = dataclasses.replace(scen, run=dataclasses.replace(scen.run, settle_s=float(tt[0])))
+    f = compute_metrics(trace, late, run_id="election", clock="lockstep", wall_time_s=0.0,
+                        messages_published=None, messages_recorded=None)["fleet"]
+    worst = max(v for v in (f["formation_error_max_m"], f["formation_error_transition_max_m"]) if v is not None)
+    assert abs(worst - hand.max()) <= bound and worst < 0.05
 
 
 def _ctx(scen, name):

@@ -192,3 +192,75 @@ def test_metrics_table_is_validated(e55, table, key):
     m = parse_scenario(dict(e55.raw, metrics={"task_tolerance_m": 0.03})).metrics
     assert m["task_tolerance_m"] == 0.03  # as given; the other options at their defaults
     assert m["coordination_pairs"] == "all" and m["formation_tolerance_m"] == 0.05 and m["path_offsets"] is None
+
+
+def test_the_leader_sequence_applies_the_succession_rule_to_the_losses_on_record():
+    """docs/faults.md, "A new leader": the first robot of the team, in the scenario's order,
+    that is not lost when the leader is; coming back does not take the lead back."""
+    from orchestrator.metrics_truth import leader_sequence
+
+    team = ("leader", "f1", "f2")
+    assert leader_sequence(team, []) == [(0.0, "leader")]
+    assert leader_sequence(team, [(3.0, "f2", True), (4.0, "f2", False)]) == [(0.0, "leader")]  # a follower
+    # lost at 5 s, back at 8 s: f1 keeps the lead; when f1 is lost in turn, the first in order leads again
+    assert leader_sequence(team, [(8.0, "leader", False), (5.0, "leader", True)], t0=0.5) == [(0.5, "leader"),
+                                                                                            (5.0, "f1")]
+    assert leader_sequence(team, [(5.0, "leader", True), (8.0, "leader", False), (12.0, "f1", True)]) == [
+        (0.0, "leader"), (5.0, "f1"), (12.0, "leader")]
+    # the second gone first: the leader's successor is the third
+    four = ("a", "b", "c", "d")
+    assert leader_sequence(four, [(2.0, "b", True), (4.0, "a", True)]) == [(0.0, "a"), (4.0, "c")]
+    # two of three lost at one instant: the one left has lost every other member and elects no one
+    assert leader_sequence(team, [(4.0, "leader", True), (4.0, "f1", True)]) == [(0.0, "leader")]
+    assert leader_sequence((), [(1.0, "r1", True)]) == []
+
+
+def test_after_an_election_the_truth_follows_the_new_leader():
+    """E5.1's geometry, synthetic truth: the team in its slots around C moving at 0.4 m/s
+    through the scheduled formation changes; the leader is lost at 15 s and held still,
+    f1 keeps its slot and C; the leader comes back at 30 s and drives along the path to
+    C (its slot now) in 2 s. The truth must find the team perfect, leave the lost leader
+    ungraded, and count its way back as a formation change."""
+    from types import SimpleNamespace
+
+    from copath.wire.messages import Event
+    from orchestrator.metrics_truth import team_geometry, truth_metrics, truth_series
+
+    sc = load_scenario(CONFIGS / "e5.1-leader-following-lemniscate.toml")
+    geo = team_geometry(sc)
+    path = geo.paths["leader"]
+    t = 0.05 * np.arange(1200)
+    x = 0.4 * t + 0.3
+    slots = geo.slots(x)
+    k_lost, k_back, k_home = 300, 600, 640
+    s_lead = x.copy()
+    s_lead[k_lost:] = x[k_lost - 1]  # held still where it was lost
+    w = np.clip((np.arange(len(t)) - k_back) / (k_home - k_back), 0.0, 1.0)
+    s_lead[k_back:] = ((1 - w) * x[k_lost - 1] + w * x)[k_back:]  # back along the path to C
+    slots["leader"] = path.pos(s_lead)
+    robots = {n: SimpleNamespace(t=t, pose=np.column_stack([P, np.zeros(len(t))])) for n, P in slots.items()}
+    events = [Event(float(t[k_lost]), "sim", "robot_lost", {"robot": "leader", "policy": "continue"}),
+              Event(float(t[k_lost]), "f1", "peer_lost", {"robot": "leader"}),  # a controller's view: not used
+              Event(float(t[k_back]), "sim", "robot_rejoined", {"robot": "leader"})]
+    trace = SimpleNamespace(robots=robots, events=events)
+    ser = truth_series(trace, sc, geo)
+    assert ser.leaders == [(0.0, "leader"), (t[k_lost], "f1")]
+    assert np.allclose(wrap_near(ser.xi_ref - x, geo.period), 0.0, atol=1e-5)  # C from f1 after the loss
+    assert np.all(ser.lost["leader"] == ((t >= t[k_lost]) & (t < t[k_back])))
+    lead = ser.formation_error["leader"]
+    assert np.isnan(lead[:k_back]).all() and not np.isnan(lead[k_back:]).any()  # leading, then lost
+    assert np.isnan(ser.formation_error["f1"][k_lost:]).all()  # f1 leads: it defines C
+    back = np.nonzero(ser.rejoining["leader"])[0]
+    assert back[0] == k_back and lead[back[-1]] > 0.05 >= lead[back[-1] + 1]  # until within tolerance
+    assert ser.in_transition.any()  # the scheduled changes are still seen
+    m = truth_metrics(trace, sc, ser)
+    assert m["leaders"] == [[0.0, "leader"], [15.0, "f1"]]
+    assert m["formation_error_max_m"] <= 0.05 and m["coordination_error_max_m"] <= 0.05
+    assert m["formation_error_transition_max_m"] == pytest.approx(lead[k_back], abs=1e-6)  # the way back
+    f2 = np.nan_to_num(ser.formation_error["f2"])
+    assert f2.max() < 1e-5
+    # the same truth without the losses on record: measured from the stopped leader, metres off
+    # (the formation change under way never ends: no one reaches a slot at the stopped C)
+    unaware = truth_metrics(SimpleNamespace(robots=robots, events=[]), sc)
+    assert unaware["leaders"] == [[0.0, "leader"]]
+    assert unaware["coordination_error_max_m"] > 1.0 and unaware["formation_error_transition_max_m"] > 1.0

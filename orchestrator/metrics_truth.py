@@ -535,13 +535,13 @@ def cross_track_series(trace, scenario: Scenario, geometry: TeamGeometry | None 
                and all(len(v) == len(series.xi_ref) for v in S.values()))
     if geo is not None and geo.lateral is not None and elected:
         q = geo.lateral(S, ref=series.xi_ref)
-        for n, m in series.lost.items():
-            if n in q:  # held at the last tick before each loss
-                q[n] = q[n][np.maximum.accumulate(np.where(m, 0, np.arange(len(m))))]
     elif geo is not None and geo.lateral is not None and (geo.leader is None or geo.leader in S):
         q = geo.lateral(S)
     else:
         q = {n: np.zeros(len(S[n])) for n in S}
+    for n, m in (series.lost.items() if series is not None else ()):
+        if n in q and len(q[n]) == len(m):  # held at the last tick before each loss
+            q[n] = q[n][np.maximum.accumulate(np.where(m, 0, np.arange(len(m))))]
     out = {}
     for n in S:
         x, y, th, _ = paths[n].frame(S[n])

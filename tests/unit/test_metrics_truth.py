@@ -224,7 +224,7 @@ def test_after_an_election_the_truth_follows_the_new_leader():
     from types import SimpleNamespace
 
     from copath.wire.messages import Event
-    from orchestrator.metrics_truth import team_geometry, truth_metrics, truth_series
+    from orchestrator.metrics_truth import cross_track_series, team_geometry, truth_metrics, truth_series
 
     sc = load_scenario(CONFIGS / "e5.1-leader-following-lemniscate.toml")
     geo = team_geometry(sc)
@@ -259,6 +259,8 @@ def test_after_an_election_the_truth_follows_the_new_leader():
     assert m["formation_error_transition_max_m"] == pytest.approx(lead[k_back], abs=1e-6)  # the way back
     f2 = np.nan_to_num(ser.formation_error["f2"])
     assert f2.max() < 1e-5
+    cross = cross_track_series(trace, sc, geo, ser)  # the followers' q scheduled on f1's C
+    assert max(float(np.max(e)) for e in cross.values()) < 1e-5
     # the same truth without the losses on record: measured from the stopped leader, metres off
     # (the formation change under way never ends: no one reaches a slot at the stopped C)
     unaware = truth_metrics(SimpleNamespace(robots=robots, events=[]), sc)

@@ -36,7 +36,7 @@ def wrap_near(d, period: float):
 
 
 def track_coordinate(path: Path, xy, window: float = 0.5, resolution: float = 0.01,
-                     extension: float = 5.0) -> np.ndarray:
+                     extension: float = 5.0, s0: float | None = None) -> np.ndarray:
     """Path coordinate of each position of a trajectory, continuous in time.
 
     Parameters
@@ -53,12 +53,17 @@ def track_coordinate(path: Path, xy, window: float = 0.5, resolution: float = 0.
         orthogonality condition (p - r(s)) . t(s) = 0 to well below it.
     extension : float
         Open paths are searched up to this far beyond their ends (straight extensions).
+    s0 : float, optional
+        Search the first sample's projection within +- ``window`` of ``s0`` instead of
+        globally, and unwrap from there: continues a trajectory from a known coordinate
+        (a robot that drove off its path and is back in its slot).
 
     Returns
     -------
     (T,) ndarray
         s for each sample, unwrapped over laps; on a closed path the first sample lies in
-        [-L/2, L/2), so a team starting near the path's origin starts near s = 0.
+        [-L/2, L/2), so a team starting near the path's origin starts near s = 0 (or near
+        ``s0`` when given).
     """
     xy = np.asarray(xy, dtype=float).reshape(-1, 2)
     T = len(xy)
@@ -73,15 +78,20 @@ def track_coordinate(path: Path, xy, window: float = 0.5, resolution: float = 0.
         grid = np.linspace(-extension, L + extension, n)
     h = float(grid[1] - grid[0])
     P = np.asarray(path.pos(grid))
-    d0 = P - xy[0]
-    i = int(np.argmin(np.einsum("ij,ij->i", d0, d0)))
-    if path.closed and grid[i] >= 0.5 * L:
-        i -= n
     w = max(1, int(np.ceil(window / h)))
     offs = np.arange(-w, w + 1)
     idx = np.empty(T, dtype=np.int64)
+    if s0 is None:
+        d0 = P - xy[0]
+        i = int(np.argmin(np.einsum("ij,ij->i", d0, d0)))
+        if path.closed and grid[i] >= 0.5 * L:
+            i -= n
+        first = 1
+    else:  # the first sample is searched near s0, like every later one near the one before
+        i = int(round(s0 / h)) if path.closed else int(np.clip(round((s0 - grid[0]) / h), 0, n - 1))
+        first = 0
     idx[0] = i
-    for k in range(1, T):
+    for k in range(first, T):
         cand = i + offs
         ci = np.mod(cand, n) if path.closed else np.clip(cand, 0, n - 1)
         d = P[ci] - xy[k]

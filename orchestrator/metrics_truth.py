@@ -435,6 +435,13 @@ def truth_series(trace, scenario: Scenario, geometry: TeamGeometry | None = None
         back = np.nonzero(m[:-1] & ~m[1:])[0] + 1
         if n in form and len(back):
             rejoining[n] = _returning(back, form[n], tol)
+            # on its way back it drove off its path, where the projection can slide along
+            # the wrong stretch (the lemniscate's crossing): once it is in its slot, its s is
+            # the slot's, C + p(C) = C + s - xi, and the projection goes on from there
+            for k in np.nonzero(rejoining[n][:-1] & ~rejoining[n][1:])[0] + 1:
+                s0 = float(xi_ref[k] + S[n][k] - XI[n][k])
+                S[n] = np.concatenate([S[n][:k], track_coordinate(geo.paths[n], trace.robots[n].pose[k:T, :2], s0=s0)])
+                XI = geo.xi(S, ref=xi_ref) if leaders is not None and len(leaders) > 1 else geo.xi(S)
     pairs = _pairs(scenario, names)
     coord = None
     if pairs:

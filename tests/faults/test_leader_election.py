@@ -37,19 +37,25 @@ def _scenario(sensors: bool = False):
     return dataclasses.replace(scen, sensors=dataclasses.replace(scen.sensors, enabled=True)) if sensors else scen
 
 
-def run_killed(scen, duration_s: float = 30.0, t_kill: float = T_KILL):
+def run_killed(scen, duration_s: float = 30.0, t_kill: float = T_KILL, t_back: float | None = None):
     """Run ``scen`` in one process; the leader's process goes away at ``t_kill`` (its link
-    closes: its token disappears and it answers no more observations, like SIGKILL).
+    closes: its token disappears and it answers no more observations, like SIGKILL) and,
+    with ``t_back``, a new one starts then (a restart: a new controller at term 0).
     Returns (scenario, keys, records, trace)."""
     keys = Keys("election")
     sim = None
     bus = MemoryBus(clock=lambda: sim.world.t)
     agents = {n: AgentNode(RobotRuntime(scen, n, keys), keys, bus.link(), "lockstep") for n in scen.robot_names}
     k_kill = int(round(t_kill / scen.run.dt))
+    k_back = None if t_back is None else int(round(t_back / scen.run.dt))
+    restarted = []
 
     def tick(k):
         if k == k_kill:
             agents["leader"].link.close()
+        if k == k_back:
+            restarted.append(AgentNode(RobotRuntime(scen, "leader", keys), keys, bus.link(), "lockstep"))
+            restarted[-1].start()
 
     sim = SimNode(scen, keys, bus.link(), duration_s=duration_s, on_tick=tick)
     for a in agents.values():
@@ -57,7 +63,7 @@ def run_killed(scen, duration_s: float = 30.0, t_kill: float = T_KILL):
     try:
         ok = sim.run()
     finally:
-        for a in agents.values():
+        for a in [*agents.values(), *restarted]:
             a.link.close()
         sim.link.close()
     assert ok
@@ -171,6 +177,33 @@ def test_the_truth_metrics_measure_the_team_from_the_new_leader(killed):
                         messages_published=None, messages_recorded=None)["fleet"]
     worst = max(v for v in (f["formation_error_max_m"], f["formation_error_transition_max_m"]) if v is not None)
     assert abs(worst - hand.max()) <= bound and worst < 0.05
+
+
+def test_the_truth_metrics_grade_a_restarted_leader_again_once_it_is_back_at_c():
+    """The leader's process is restarted in the same run (killed at 12 s, back at 24 s):
+    it follows f1, so f1 keeps the lead in the metrics; its way back to C (its slot) counts
+    as a formation change, and once there it is graded again like any member. It drove
+    across the lemniscate's crossing to get there, so its path coordinate is taken up
+    again from its slot (without that the truth put it 5 m away along the path)."""
+    t_back = 24.0
+    scen, keys, records, trace = run_killed(_scenario(sensors=True), duration_s=32.0, t_back=t_back)
+    gone = [(e.what, e.t) for e in trace.events if e.source == "sim"]
+    assert [w for w, _ in gone] == ["robot_lost", "robot_rejoined"]
+    assert gone[1][1] == pytest.approx(t_back, abs=0.1)
+    res = compute_metrics(trace, scen, run_id="election", clock="lockstep", wall_time_s=0.0,
+                          messages_published=None, messages_recorded=None)
+    m = res["fleet"]
+    assert m["leaders"] == [[0.0, "leader"], [pytest.approx(T_KILL, abs=0.1), "f1"]]  # no flip-flop
+    assert res["robots"]["leader"]["restarts"] == 1
+    ser = truth_series(trace, scen)
+    lead, back = ser.formation_error["leader"], ser.rejoining["leader"]
+    t_home = ser.t[back][-1]
+    assert ser.t[back][0] == pytest.approx(gone[1][1]) and t_home < 30.0  # back in its slot in time
+    assert m["formation_error_transition_max_m"] >= round(float(np.max(lead[back])), 6) > 1.0  # the way back
+    assert m["formation_error_max_m"] < 0.05  # the others' steady figure is not touched by it
+    home = ser.t > t_home
+    assert np.max(lead[home]) < 0.05 and np.max(ser.coordination_error[home]) < 0.05
+    assert m["coordination_error_max_m"] < 0.1
 
 
 def _ctx(scen, name):

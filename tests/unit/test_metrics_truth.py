@@ -46,6 +46,22 @@ def test_track_coordinate_beyond_the_ends_of_an_open_path_and_around_a_circle():
     assert np.allclose(track_coordinate(c, 1.2 * c.pos(s_true)), s_true, atol=1e-6)
 
 
+def test_track_coordinate_from_a_known_coordinate_takes_the_right_branch_at_the_crossing():
+    """A robot back in its slot at the lemniscate's crossing: a global search cannot tell
+    the two branches apart there, ``s0`` (its slot's coordinate) can; laps are kept too."""
+    path = lemniscate(2.3)
+    s = np.linspace(0.0, path.length, 20001)
+    P = path.pos(s)
+    a = path.length / 4  # the crossing is met at a and at a + L/2 (the lobes' symmetry)
+    b = s[np.argmin(np.hypot(*(P - path.pos(a)).T) + 9.0 * (np.abs(s - a) < 1.0))]
+    assert np.hypot(*(path.pos(b) - path.pos(a))) < 1e-3
+    s_true = np.linspace(b, b + 2.0, 200)  # along the branch through b
+    assert abs(track_coordinate(path, path.pos(s_true))[-1] - s_true[-1]) > 1.0  # a global start: lost
+    assert np.allclose(track_coordinate(path, path.pos(s_true), s0=b), s_true, atol=1e-3)
+    laps = s_true + 3 * path.length
+    assert np.allclose(track_coordinate(path, path.pos(laps), s0=laps[0]), laps, atol=1e-3)
+
+
 def test_switching_offsets_and_the_slot_coordinate():
     slots, switch_at, tm = [(0.0, 0.5), (0.6, 0.0)], [3.0], 2.0
     s = np.linspace(0.0, 10.0, 1001)

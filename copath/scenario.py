@@ -99,12 +99,12 @@ class RunConfig:
     (docs/performance.md, "Runs that end when their work is done")."""
     until_margin_s: float = 5.0
     """``until = "tasks_done"``: simulated time kept after the truth completed the last task [s]."""
-    secure: bool = False
+    secure: bool = True
     """Per-run credentials and access control on the run's router (docs/security.md): each
     robot may publish only under its own keys, only the simulator publishes observations
     and truth, and a session without the run's credentials can neither inject nor read.
-    Off by default: it costs 3-7 % of lockstep speed on a quiet machine, under the bar for
-    a default, but the leader-following fleet (E5.1) stalls in it (docs/security.md)."""
+    On by default (it costs 3-7 % of lockstep speed); ``false`` for a fleet whose robots
+    reach the run through a router of their own, which logs in as nobody."""
     on_robot_failure: str = "fail"
     """What a robot process that dies or freezes (its liveliness lease expires) does to the
     run: ``fail`` ends it; ``continue`` stops that robot where it is and the others go on

@@ -530,8 +530,8 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--external", action="append", default=[], metavar="ROBOT",
                    help="do not start this robot: print its copath agent command and wait for it (repeatable)")
     r.add_argument("--secure", action=argparse.BooleanOptionalAction, default=None,
-                   help="per-run credentials and access control on the run's router (run.secure; "
-                        "docs/security.md)")
+                   help="per-run credentials and access control on the run's router (run.secure, on by "
+                        "default; --no-secure for robots behind a router of their own; docs/security.md)")
     r.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     sw = sub.add_parser("sweep", help="run the product of settings and seeds; one table and plots", parents=[common])
     sw.add_argument("config", help="scenario file, bundled file stem or experiment id")

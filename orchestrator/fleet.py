@@ -264,6 +264,10 @@ def run_fleet(scenario: Scenario, opts: RunOptions) -> RunOutcome:
         creds = make_credentials(out / "secrets", ["sim", *scenario.robot_names])
         router_extra = _router_extra(creds, keys, list(scenario.robot_names),
                                      overhear=scenario.safety.enabled and scenario.safety.overhear)
+        if opts.connect:
+            logger.warning("secure mode: robots that join through the routers of --connect are refused "
+                           "(a router in between logs in as nobody); use --no-secure for such a fleet "
+                           "(README, 'Running robots on several machines')")
     router = ZenohLink.open(SessionConfig(mode="router", listen=tuple(listen), connect=tuple(opts.connect),
                                           lease_ms=round(1e3 * scenario.run.lease_s),
                                           extra=router_extra))

@@ -55,7 +55,9 @@ def test_a_secure_run_cannot_be_joined_without_credentials_nor_forged_with_anoth
     heard = []
     with _session(ep, str(r2_file)) as spy, _session(ep, str(r2_file)) as reader:
         # a second session, so the injector's own puts (delivered locally) do not count
-        for key in (keys.obs("r1"), keys.truth, keys.cmd("r1"), f"{keys.prefix}/peer/*/to/r1"):
+        # (direct messages between other robots are granted here: E5.5's safety filter
+        # overhears them; tests/faults/test_acl.py checks that grant at the router)
+        for key in (keys.obs("r1"), keys.truth, keys.cmd("r1"), keys.telemetry("r1")):
             reader.subscribe_raw(key, lambda k, b: heard.append(k))
         mcap = tmp_path / "run.mcap"
         while not (mcap.is_file() and mcap.stat().st_size > 300_000):  # the run is under way

@@ -446,10 +446,11 @@ def truth_series(trace, scenario: Scenario, geometry: TeamGeometry | None = None
     coord = None
     if pairs:
         errs = [np.abs(wrap_near(XI[a] - XI[b], geo.period)) for a, b in pairs]
-        out = {n: lost.get(n, False) | rejoining.get(n, False) for n in set(lost) | set(rejoining)}
-        if out:
+        unscored = {n: lost.get(n, False) | rejoining.get(n, False) for n in set(lost) | set(rejoining)}
+        if unscored:
             none = np.zeros(T, dtype=bool)
-            errs = [np.where(out.get(a, none) | out.get(b, none), np.nan, e) for (a, b), e in zip(pairs, errs)]
+            errs = [np.where(unscored.get(a, none) | unscored.get(b, none), np.nan, e)
+                    for (a, b), e in zip(pairs, errs)]
             coord = _worst(errs)
         else:
             coord = np.max(errs, axis=0)

@@ -105,8 +105,31 @@ class SessionConfig:
         return conf
 
 
+SLOW_CONNECT_S = 10.0
+"""A client still without a session after this long says why it may be waiting [s]."""
+
+
 def open_session(conf: SessionConfig) -> zenoh.Session:
-    return zenoh.open(conf.to_zenoh())
+    """Open a session; a client keeps retrying its router until it is admitted.
+
+    A router that refuses the session (a secure run and no or wrong credentials) looks,
+    from here, like one that is not up yet: Zenoh retries either way without a word. So a
+    client that waits longer than :data:`SLOW_CONNECT_S` logs what to check."""
+    if conf.mode != "client":
+        return zenoh.open(conf.to_zenoh())
+    hint = ("the run's credentials file is given (--zenoh-config) but the router has not admitted it: "
+            "is it this run's file?" if conf.authenticated else
+            "a secure run (the default) refuses sessions without the run's credentials: pass "
+            "--zenoh-config RUN_DIR/secrets/<robot>.json5, as printed by copath run --external")
+    timer = threading.Timer(SLOW_CONNECT_S, logger.warning, args=(
+        "no session with the router at %s after %.0f s; still trying. Is the router up and reachable? %s",
+        ", ".join(conf.connect), SLOW_CONNECT_S, hint))
+    timer.daemon = True
+    timer.start()
+    try:
+        return zenoh.open(conf.to_zenoh())
+    finally:
+        timer.cancel()
 
 
 Callback = Callable[[str, Any], None]

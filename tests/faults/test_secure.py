@@ -81,3 +81,22 @@ def test_a_secure_run_cannot_be_joined_without_credentials_nor_forged_with_anoth
     assert log.counts[keys.cmd("r1")] == log.counts[keys.truth] == 3000
     assert keys.end not in log.counts or log.counts[keys.end] == 1
     assert not any(getattr(r, "reason", "") == "forged end" for _, _, r in log.records)
+
+
+@pytest.mark.parametrize("credentials", [False, True])
+def test_a_client_the_router_does_not_admit_says_what_to_check(caplog, monkeypatch, credentials):
+    """A refused session looks like a router not yet up (Zenoh retries without a word): after
+    a while the client says so, and names the credentials it lacks or the file it used."""
+    import copath.wire.session as session
+
+    monkeypatch.setattr(session, "SLOW_CONNECT_S", 0.3)
+    extra = (("connect/timeout_ms", "1500"),)  # give up in the end, for the test
+    if credentials:
+        extra += (("transport/auth/usrpwd", json.dumps({"user": "r2", "password": "wrong"})),)
+    conf = SessionConfig(mode="client", connect=(loopback_endpoint(free_port()),), extra=extra)
+    with caplog.at_level("WARNING", logger="copath.wire.session"), pytest.raises(zenoh.ZError):
+        session.open_session(conf)
+    text = caplog.text
+    assert "no session with the router at tcp/127.0.0.1:" in text and "still trying" in text
+    assert ("is it this run's file?" in text) == credentials
+    assert ("pass --zenoh-config RUN_DIR/secrets/<robot>.json5" in text) == (not credentials)

@@ -18,7 +18,9 @@ simulator's true poses, and returns the fleet keys of metrics.json:
 - ``task_times_s``: for each truth-completed formation, the time from the first robot
   starting it (t = 0 for the first) to that tick;
 - ``tasks_completed_reported`` and ``task_times_reported_s``: the same from what the
-  controllers report (every robot working on k with ``task_done``);
+  controllers report (every robot working on k with ``task_done``; a robot lost by the
+  simulator's record, ``robot_lost`` until ``robot_rejoined``, reports nothing and is left
+  out);
 - ``assignment_cost``: sum over formations of (6.5), sum_i ||x_i - g_p(i)||^2, for the
   roles the robots finally held, with x_i the true positions at the instant the first
   robot agreed on the formation's targets;
@@ -39,6 +41,8 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from copath.occupancy import first_occupied, formations, is_rigid_placement, task_tolerance
+
+from .metrics_truth import outages
 
 __all__ = ["roles_metrics"]
 
@@ -99,6 +103,20 @@ def roles_metrics(trace, scenario) -> dict[str, Any]:
         task[i, ok] = tk[idx[ok]]
         done[i, ok] = dn[idx[ok]]
 
+    # robots lost by the simulator's record (robot_lost .. robot_rejoined) report nothing:
+    # the live ones' reports decide
+    lost = np.zeros((len(names), len(grid)), dtype=bool)
+    since: dict[str, float] = {}
+    for t_e, n, is_lost in outages(getattr(trace, "events", ())):
+        if n not in robots:
+            continue
+        if is_lost:
+            since.setdefault(n, t_e)
+        elif n in since:
+            lost[names.index(n)] |= (grid >= since.pop(n) - 1e-9) & (grid < t_e - 1e-9)
+    for n, t_l in since.items():
+        lost[names.index(n)] |= grid >= t_l - 1e-9
+
     conflicts = 0
     for rt in robots.values():
         vals = [d["conflicts_resolved"] for d in rt.telemetry if d.get("conflicts_resolved") is not None]
@@ -117,7 +135,7 @@ def roles_metrics(trace, scenario) -> dict[str, Any]:
         if len(started) == 0:
             continue
         t_start = 0.0 if k == 0 else float(grid[started[0]])
-        full = np.nonzero(np.all(on_k & done, axis=0))[0]
+        full = np.nonzero(np.all((on_k & done) | lost, axis=0) & np.any(on_k & done & ~lost, axis=0))[0]
         t_rep = float(grid[full[0]]) if len(full) else None
         if t_rep is not None:
             times_rep.append(round(t_rep - t_start, 6))

@@ -109,3 +109,20 @@ def test_truth_tasks_reject_announced_targets_that_are_not_the_template():
     for rt in tr.robots.values():
         rt.telemetry[0] = dict(rt.telemetry[0], formation_targets=bent)
     assert roles_metrics(tr, _scenario())["tasks_completed"] == 0
+
+
+def test_a_robot_lost_on_record_is_left_out_of_the_reported_completion():
+    """b's reports stop while it is lost (the simulator's robot_lost .. robot_rejoined):
+    a's report of task 1 alone completes it while b is lost, not before, not after."""
+    tr = _trace()
+    tr.robots["a"].telemetry[-1] = dict(tr.robots["a"].telemetry[-1], task_done=True)
+    assert roles_metrics(tr, _scenario())["tasks_completed_reported"] == 1  # b never reports task 1 done
+    ev = lambda t, what: SimpleNamespace(t=t, source="sim", what=what, detail={"robot": "b"})  # noqa: E731
+    tr.events = [ev(2.75, "robot_lost")]
+    m = roles_metrics(tr, _scenario())
+    # a reports task 1 done from t = 3.0, b is lost from 2.75: task 1 reported at 3.0, 1.0 s after t = 2.0
+    assert m["tasks_completed_reported"] == 2 and m["task_times_reported_s"][1] == pytest.approx(1.0)
+    tr.events = [ev(2.75, "robot_lost"), ev(2.9, "robot_rejoined")]  # back before a is done
+    assert roles_metrics(tr, _scenario())["tasks_completed_reported"] == 1
+    tr.events = [SimpleNamespace(t=2.75, source="r1", what="robot_lost", detail={"robot": "b"})]
+    assert roles_metrics(tr, _scenario())["tasks_completed_reported"] == 1  # only the simulator's record counts

@@ -407,10 +407,17 @@ def main(argv: list[str] | None = None) -> int:
     except (ConfigError, ValueError) as exc:
         print(f"copath agent: {exc}", file=sys.stderr)
         return 2
-    from copath.wire.session import ZenohLink  # noqa: PLC0415  (the in-process loop never loads zenoh)
+    from copath.wire.acl import AccessDenied, AccessPolicy  # noqa: PLC0415
+    from copath.wire.session import ZenohLink  # noqa: PLC0415  (the in-process loop opens no session)
 
     with ZenohLink.open(conf) as link:
-        AgentNode(runtime, keys, link, scenario.run.clock).run()
+        if conf.authenticated:  # behind a secure router: step outside the grants and fail at once
+            link.guard(AccessPolicy.for_scenario(keys, scenario), args.robot)
+        try:
+            AgentNode(runtime, keys, link, scenario.run.clock).run()
+        except AccessDenied as exc:
+            print(f"copath agent: {exc}", file=sys.stderr)
+            return 2
         time.sleep(0.2)  # let the router forward the closing record before the session closes
     return 0
 

@@ -259,11 +259,12 @@ def run_fleet(scenario: Scenario, opts: RunOptions) -> RunOutcome:
     metadata["copath"]["secure"] = str(secure)
     creds, router_extra = None, ()
     if secure:
+        from copath.wire.acl import overhears
+
         from .security import make_credentials, router_extra as _router_extra
 
         creds = make_credentials(out / "secrets", ["sim", *scenario.robot_names])
-        router_extra = _router_extra(creds, keys, list(scenario.robot_names),
-                                     overhear=scenario.safety.enabled and scenario.safety.overhear)
+        router_extra = _router_extra(creds, keys, list(scenario.robot_names), overhear=overhears(scenario))
         if opts.connect:
             logger.warning("secure mode: robots that join through the routers of --connect are refused "
                            "(a router in between logs in as nobody); use --no-secure for such a fleet "

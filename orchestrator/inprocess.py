@@ -58,8 +58,7 @@ def run_scenario(scenario: Scenario, duration_s: float | None = None, run_id: st
     sim: SimNode | None = None
     # secure mode's access policy, whatever run.secure says: a node that steps outside its
     # grants fails here at once, not as a stalled fleet behind a secure router
-    bus = MemoryBus(clock=lambda: sim.world.t,
-                    policy=AccessPolicy(keys, overhear=scenario.safety.enabled and scenario.safety.overhear))
+    bus = MemoryBus(clock=lambda: sim.world.t, policy=AccessPolicy.for_scenario(keys, scenario))
     tick = None if on_tick is None else (lambda k: on_tick((k + 1) * dt, len(bus.records)))
     sim = SimNode(scenario, keys, bus.link("sim"), duration_s=duration_s, on_tick=tick)
     sim.world.t = 0.0

@@ -366,10 +366,17 @@ def main(argv: list[str] | None = None) -> int:
     except (ConfigError, ValueError) as exc:
         print(f"copath sim: {exc}", file=sys.stderr)
         return 2
+    from copath.wire.acl import AccessDenied, AccessPolicy  # noqa: PLC0415
     from copath.wire.session import ZenohLink  # noqa: PLC0415
 
     with ZenohLink.open(conf) as link:
-        ok = SimNode(scenario, keys, link, args.start_timeout).run()
+        if conf.authenticated:  # behind a secure router: step outside the grants and fail at once
+            link.guard(AccessPolicy.for_scenario(keys, scenario), "sim")
+        try:
+            ok = SimNode(scenario, keys, link, args.start_timeout).run()
+        except AccessDenied as exc:
+            print(f"copath sim: {exc}", file=sys.stderr)
+            return 2
         time.sleep(0.2)  # let the router forward the closing records before the session closes
     return 0 if ok else 1
 

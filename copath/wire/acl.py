@@ -32,9 +32,11 @@ import zenoh
 
 from .keys import Keys
 
-__all__ = ["Grants", "grants", "AccessPolicy", "AccessDenied", "ACTIONS"]
+__all__ = ["Grants", "grants", "overhears", "AccessPolicy", "AccessDenied", "ACTIONS"]
 
 ACTIONS = ("publish", "subscribe", "token", "watch")
+_VERBS = {"publish": "publish on", "subscribe": "subscribe to", "token": "declare the liveliness token",
+          "watch": "watch the liveliness of"}
 
 
 class AccessDenied(PermissionError):
@@ -67,6 +69,12 @@ def grants(keys: Keys, proc: str, overhear: bool = False) -> Grants:
     return Grants(pub, sub, (keys.alive(proc),), (keys.all_alive,))
 
 
+def overhears(scenario) -> bool:
+    """Does ``scenario``'s safety filter overhear other robots' messages (the grant of
+    ``peer/*/to/*`` to robots)? ``safety.enabled`` and ``safety.overhear``."""
+    return bool(scenario.safety.enabled and scenario.safety.overhear)
+
+
 class AccessPolicy:
     """The grants of every process of a run, checked per (process, action, key expression).
 
@@ -78,6 +86,11 @@ class AccessPolicy:
         self.overhear = overhear
         self._grants: dict[str, Grants] = {}
         self._seen: dict[tuple[str, str, str], bool] = {}
+
+    @classmethod
+    def for_scenario(cls, keys: Keys, scenario) -> "AccessPolicy":
+        """The policy of a run of ``scenario`` (what its router grants in secure mode)."""
+        return cls(keys, overhear=overhears(scenario))
 
     def grants_of(self, proc: str) -> Grants:
         g = self._grants.get(proc)
@@ -102,5 +115,6 @@ class AccessPolicy:
         what the process may use instead."""
         if not self.allows(proc, action, key_expr):
             allowed = ", ".join(getattr(self.grants_of(proc), action))
-            raise AccessDenied(f"{proc} may not {action} {key_expr!r} in secure mode; "
-                               f"{proc} may {action}: {allowed} (docs/security.md)")
+            verb = _VERBS[action]
+            raise AccessDenied(f"{proc} may not {verb} {key_expr!r} in secure mode; "
+                               f"{proc} may {verb}: {allowed} (docs/security.md)")

@@ -23,6 +23,7 @@ from typing import Any, Callable
 
 import zenoh
 
+from .acl import AccessPolicy
 from .link import key_matches
 from .messages import WireError, unpack
 from .trust import RejectLog, check_origin
@@ -157,6 +158,20 @@ class ZenohLink:
         self._lock = threading.Lock()
         self._closed = False
         self._droppable: tuple[str, ...] = ()
+        self._policy: AccessPolicy | None = None
+        self._user: str | None = None
+
+    def guard(self, policy: AccessPolicy, user: str) -> None:
+        """Check every declaration and publication of ``user`` against ``policy`` (a
+        session that logs in to a secure router): the router refuses what the grants do not
+        cover without a word, so a node stepping outside them fails here at once, naming
+        the key (:class:`copath.wire.acl.AccessDenied`), instead of waiting for messages
+        that never come."""
+        self._policy, self._user = policy, user
+
+    def _check(self, action: str, key: str) -> None:
+        if self._policy is not None:
+            self._policy.check(self._user, action, key)
 
     def drop_when_congested(self, *key_exprs: str) -> None:
         """Publish records on keys matching ``key_exprs`` with congestion control DROP.
@@ -193,6 +208,7 @@ class ZenohLink:
         self.publish_bytes(key, record.pack())
 
     def publish_bytes(self, key: str, data: bytes) -> None:
+        self._check("publish", key)
         if not self.declare_publishers:
             with self._lock:
                 ke = self._keyexprs.get(key)
@@ -211,6 +227,7 @@ class ZenohLink:
 
     def subscribe(self, key_expr: str, callback: Callback) -> None:
         """Decode every sample on key_expr and call ``callback(key, record)``."""
+        self._check("subscribe", key_expr)
 
         def handler(sample: zenoh.Sample) -> None:
             key = str(sample.key_expr)
@@ -230,6 +247,7 @@ class ZenohLink:
 
     def subscribe_raw(self, key_expr: str, callback: Callable[[str, bytes], None]) -> None:
         """Call ``callback(key, payload_bytes)`` for every sample (the recorder)."""
+        self._check("subscribe", key_expr)
 
         def handler(sample: zenoh.Sample) -> None:
             try:
@@ -242,10 +260,12 @@ class ZenohLink:
 
     def declare_token(self, key: str) -> None:
         """Liveliness token: disappears within milliseconds when the process dies."""
+        self._check("token", key)
         self._decls.append(self.session.liveliness().declare_token(key))
 
     def watch_liveliness(self, key_expr: str, callback: Callable[[str, bool], None]) -> None:
         """Call ``callback(key, alive)`` when a token appears (True) or disappears (False)."""
+        self._check("watch", key_expr)
 
         def handler(sample: zenoh.Sample) -> None:
             try:

@@ -53,9 +53,9 @@ def test_a_subscription_must_be_included_whole_in_a_grant():
 def test_a_link_stepping_outside_its_grants_fails_naming_the_key_and_what_is_allowed():
     bus = MemoryBus(policy=AccessPolicy(KEYS))
     r1 = bus.link("r1")
-    with pytest.raises(AccessDenied, match=r"r1 may not publish 'copath/acl/robot/r2/cmd'.*robot/r1/cmd"):
+    with pytest.raises(AccessDenied, match=r"r1 may not publish on 'copath/acl/robot/r2/cmd'.*robot/r1/cmd"):
         r1.publish(KEYS.cmd("r2"), object())
-    with pytest.raises(AccessDenied, match="r1 may not subscribe"):
+    with pytest.raises(AccessDenied, match="r1 may not subscribe to"):
         r1.subscribe(KEYS.truth, lambda k, r: None)
     with pytest.raises(ValueError, match="action = 'read' is not allowed"):
         AccessPolicy(KEYS).allows("r1", "read", KEYS.cmd("r1"))
@@ -113,3 +113,21 @@ def test_the_router_refuses_and_grants_what_the_policy_does(tmp_path, overhear):
     # receive, r1 -> r2, to every local subscriber that matches)
     assert (KEYS.peer_direct("r1", "r3") in heard["all"]) == overhear
     assert len(heard["all"]) == (20 if overhear else 10)
+
+
+def test_a_secure_session_stepping_outside_its_grants_fails_at_once():
+    """Behind a secure router the agent and the simulator guard their own link: what the
+    router would refuse without a word raises here, naming the key."""
+    from copath.wire.session import ZenohLink
+
+    with ZenohLink.open(SessionConfig(mode="peer", listen=(loopback_endpoint(free_port()),))) as link:
+        link.guard(AccessPolicy(KEYS), "r1")
+        link.subscribe(KEYS.obs("r1"), lambda k, r: None)
+        link.declare_token(KEYS.alive("r1"))
+        with pytest.raises(AccessDenied, match="r1 may not subscribe to 'copath/acl/peer/\\*/to/\\*'"):
+            link.subscribe(KEYS.peer_direct("*", "*"), lambda k, r: None)
+        with pytest.raises(AccessDenied, match="r1 may not publish on"):
+            link.publish_bytes(KEYS.obs("r1"), b"x")
+        with pytest.raises(AccessDenied, match="r1 may not declare the liveliness token 'copath/acl/alive/r2'"):
+            link.declare_token(KEYS.alive("r2"))
+        assert link.published == 0

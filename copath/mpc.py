@@ -62,7 +62,8 @@ are declared) and per horizon end (``p_term``: (n_pt,)). ``res.x`` (N+1, nx) and
 ``res.u`` (N, nu) are the predicted plan; ``mpc.shifted_plan()`` gives the warm start
 of the next solve, ``mpc.set_initial_guess(X, U)`` replaces it, and ``mpc.reset()``
 forgets it. ``solve(..., guess=(X, U))`` overrides the warm start once and
-``solve(..., u_lb=..., u_ub=...)`` replaces the input bounds for one solve.
+``solve(..., u_lb=..., u_ub=...)`` replaces the input bounds for one solve,
+``solve(..., hT_lb=..., hT_ub=...)`` the bounds of the soft terminal constraint.
 
 Helpers for controllers: :class:`SolverFields` (inherit it in a controller config to
 accept ``solver``, ``qp_solver``, ``hessian``, ``max_iter``, ``jit``, ``tol`` and the
@@ -620,6 +621,8 @@ class MPCSolver:
         guess: tuple[np.ndarray, np.ndarray] | None = None,
         u_lb=None,
         u_ub=None,
+        hT_lb=None,
+        hT_ub=None,
         _retry: bool = True,
     ) -> SolveResult:
         """Solve from state ``x0`` with parameters; never raises on solver failure.
@@ -639,6 +642,9 @@ class MPCSolver:
             Initial guess overriding the shifted previous solution.
         u_lb, u_ub : (nu,) or (N, nu), optional
             Input bounds replacing the OCP's for this solve only.
+        hT_lb, hT_ub : (n_T,), optional
+            Bounds of the soft terminal constraint replacing the OCP's for this solve only
+            (the plan is accepted against them).
         """
         o = self.ocp
         io = self._io
@@ -660,6 +666,16 @@ class MPCSolver:
                 if bound is not None:
                     b = np.broadcast_to(np.asarray(bound, float), (o.N, o.nu))
                     arr[self._u_idx] = b.reshape(-1)
+        lbg, ubg = self._lbg_np, self._ubg_np
+        if hT_lb is not None or hT_ub is not None:
+            lbg, ubg = lbg.copy(), ubg.copy()
+            n, ns = len(lbg), self._n_slack  # the soft rows close g: h - sigma <= hT_ub, h + sigma >= hT_lb
+            if hT_ub is not None:
+                ubg[n - 2 * ns: n - ns] = np.broadcast_to(np.asarray(hT_ub, float), (ns,))
+            if hT_lb is not None:
+                lbg[n - ns:] = np.broadcast_to(np.asarray(hT_lb, float), (ns,))
+        io["lbg"][:] = lbg
+        io["ubg"][:] = ubg
         w0, lam_x, lam_g = io["x0"], io["lam_x0"], io["lam_g0"]
         if guess is not None:
             w0[:] = self._join(np.asarray(guess[0], float).reshape(o.N + 1, o.nx),
@@ -690,14 +706,14 @@ class MPCSolver:
         status = str(stats.get("return_status", "unknown"))
         w = io["x"].copy()
         g = io["g"]
-        viol = max(0.0, float(np.max(self._lbg_np - g, initial=0.0)), float(np.max(g - self._ubg_np, initial=0.0)))
+        viol = max(0.0, float(np.max(lbg - g, initial=0.0)), float(np.max(g - ubg, initial=0.0)))
         finite = bool(np.isfinite(w).all()) and math.isfinite(viol)
         accepted = finite and viol <= self.config.feas_tol and (
             bool(stats.get("success", False)) or status in _ACCEPTABLE
         )
         if not accepted and finite and _retry:
             return self.solve(x0, p_stage, p_term, guess=(w[self._x_idx], w[self._u_idx2]),
-                              u_lb=u_lb, u_ub=u_ub, _retry=False)
+                              u_lb=u_lb, u_ub=u_ub, hT_lb=hT_lb, hT_ub=hT_ub, _retry=False)
         if not accepted:
             reason = status if finite else "non-finite solution"
             result = self._fail(f"{reason} (violation {viol:.2g})", x0)

@@ -507,8 +507,12 @@ class FollowerController:
                 f"(safety_distance = {cfg.safety_distance} m)")
         if cfg.terminal:
             check_gain_conditions(cfg.Q, cfg.R, cfg.gains, where=where)
+        # a member far from its slot (a restart, a rejoin) starts outside the terminal region of
+        # (5.8) and cannot reach it within the horizon: the bound contracts from where it is
+        # (docs/faults.md, "A restarted leader, in one process")
         self.nmpc = OmniTrackingNMPC(ctx.model, cfg.horizon, ctx.dt, cfg.Q, cfg.R, cfg.gains,
-                                     terminal=cfg.terminal, solver=cfg.solver_config(), name=f"{ctx.name}_follower")
+                                     terminal=cfg.terminal, solver=cfg.solver_config(), name=f"{ctx.name}_follower",
+                                     contractive_terminal=True)
         self.geometry = self.path.table()
         self.inbox = LatestMessages(kinds=(PLAN_KIND,), accept=_usable_plan)
         self.plan: LeaderPlan | None = None

@@ -389,6 +389,18 @@ class OmniTrackingNMPC:
 
     ``solve(pose, ref)`` takes ``ref`` of shape (N+1, 5): rows (x_r, y_r, theta_r, u_r,
     omega_r) at t, t + delta, ..., t + N delta.
+
+    ``contractive_terminal``: from a state outside the terminal region (the terminal law
+    (4.8) of (4.12) would ask a wheel for more than qdot_max, the bound of (4.11); D15 of
+    docs/derivations.md), the terminal state may ask the terminal law for no more than
+    the current state does, and for qdot_max once it is inside. A robot far from its
+    reference cannot reach the region within the horizon (Sec. 2.2.2: the domain of
+    attraction is limited to the states that can be steered into it in T_p; a
+    contractive constraint in the sense of Kothare and Morari [128] is kept); with the fixed
+    bound the soft terminal constraint's slack carries the slack weight as its
+    multiplier, the Gauss-Newton Hessian leaves that constraint's curvature out, and the
+    SQP cycles without converging (docs/faults.md, "A restarted leader, in one process").
+    Inside the region (every step of an undisturbed run) nothing changes.
     """
 
     nx = 3
@@ -406,6 +418,7 @@ class OmniTrackingNMPC:
         terminal: bool = True,
         solver: SolverConfig | None = None,
         name: str = "omni_tt",
+        contractive_terminal: bool = False,
     ) -> None:
         self.model, self.N, self.dt = model, int(N), float(dt)
         self.Q, self.R = np.asarray(Q, float), np.asarray(R, float)
@@ -453,6 +466,21 @@ class OmniTrackingNMPC:
         )
         self.terminal = terminal
         self.mpc = MPCSolver(ocp, solver or SolverConfig())
+        self.contractive = terminal and contractive_terminal
+
+    def terminal_bound(self, pose, ref_row) -> float | None:
+        """The bound of the terminal law's wheel speeds for a solve from ``pose`` against
+        ``ref_row`` (x_r, y_r, theta_r, u_r, omega_r, heading next to the pose's): the
+        largest wheel speed the terminal law (4.8) asks at the current state, or None when
+        that is within qdot_max of (4.11) (or the bound is not contractive)."""
+        if not self.contractive:
+            return None
+        xe = tt_errors(pose, ref_row)  # the terminal law of D15, as ``terminal_region`` above
+        a, b, g = self.gains
+        u_d, omega_d = float(ref_row[3]), float(ref_row[4])
+        body = (u_d * math.cos(xe[2]) + a * xe[0], u_d * math.sin(xe[2]) + b * xe[1], omega_d + g * xe[2])
+        need = float(np.max(np.abs(self.M @ body)))
+        return need if need > self.model.qdot_max else None
 
     def solve(self, pose, ref) -> TTSolution:
         """Solve from ``pose`` (3,) against reference samples ``ref`` (N+1, 5)."""
@@ -473,7 +501,9 @@ class OmniTrackingNMPC:
         guess = None
         if plan is None:
             guess = self._cold_guess(x0, ref)
-        res = self.mpc.solve(x0, ref[:N], ref[N] if self.terminal else None, guess=guess)
+        bound = self.terminal_bound(x0, ref[0])
+        hT = {} if bound is None else {"hT_lb": [-bound] * 3, "hT_ub": [bound] * 3}
+        res = self.mpc.solve(x0, ref[:N], ref[N] if self.terminal else None, guess=guess, **hT)
         q = res.u0
         return TTSolution(res.ok, self.Minv @ q, q, res.x, res)
 

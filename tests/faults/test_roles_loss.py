@@ -4,6 +4,8 @@ E6.3 (16 robots, 12 positions) with r5's radio silent for the rest of the run an
 ``run.on_robot_failure = "continue"``: the team leaves r5 out of its assignment problem,
 or releases the position r5 claimed, and a robot that had no position takes it, so the
 circle is still completed (measured on the simulator's truth) without a collision.
+The silent r5, which hears nobody and so has lost every other robot, applies the same
+rule to itself: it holds still unless it was last heard within R_max of its position.
 In-process and seeded: each run takes a few seconds.
 """
 
@@ -12,7 +14,10 @@ from __future__ import annotations
 import numpy as np
 
 from agent.controllers.roles.assignment import RoleBook
+from agent.controllers.roles.controller import RolesController
 from agent.controllers.roles.phases import ASSIGNED, EN_ROUTE, Assignment, Peer, PeerTable
+from copath.control import Observation, PeerMessage, RobotContext
+from copath.models import UnicycleModel
 from orchestrator import api
 
 SCENARIO = "e6.3-roles-circle-surplus-robots"
@@ -67,6 +72,99 @@ def test_a_position_claimed_before_the_loss_is_taken_by_another_robot():
     # no two live robots hold the same position at the end
     final = [seq[-1][1] for name, seq in claims.items() if name != "r5" and seq and seq[-1][1] >= 0]
     assert len(final) == len(set(final))
+
+
+def test_a_robot_cut_off_from_every_other_holds_still_and_nobody_hits_it():
+    run = _silent(11.0)  # r5 last heard at 10.9 s, 0.41 m from its position (R_max = 0.4 m): released
+    fleet = run.metrics["fleet"]
+    assert fleet["collisions"] == 0  # before the rule r5 drove on, blind, into r3 on its old position
+    assert fleet["min_separation_m"] > 0.25
+    assert fleet["tasks_completed"] == 1
+    claims = _claims(run)
+    k = [pos for t, pos in claims["r5"] if pos >= 0][-1]
+    takers = [name for name, seq in claims.items() if name != "r5" and any(t > 11.0 and pos == k for t, pos in seq)]
+    assert len(takers) == 1
+    # r5 loses every other robot one lease (1 s) after its radio goes quiet, and stands still from then on
+    P = run.poses()["r5"]
+    held = P[P[:, 0] >= 12.2, 1:3]
+    assert len(held) > 50 and float(np.max(np.hypot(*(held - held[0]).T))) < 1e-3
+    G = _final_targets(run)
+    assert float(np.hypot(*(G[k] - held[-1]))) > 0.25  # short of the position it was heading for
+
+
+def test_a_robot_cut_off_next_to_its_position_keeps_it_and_drives_on():
+    run = _silent(12.0)  # r5 last heard within R_max of its position: the others keep it for r5
+    fleet = run.metrics["fleet"]
+    assert fleet["collisions"] == 0
+    assert fleet["tasks_completed"] == 1
+    claims = _claims(run)
+    k = [pos for t, pos in claims["r5"] if pos >= 0][-1]
+    assert not [name for name, seq in claims.items() if name != "r5" and any(t > 12.0 and pos == k for t, pos in seq)]
+    G = _final_targets(run)
+    assert float(np.hypot(*(G[k] - run.poses()["r5"][-1, 1:3]))) < 0.05  # r5 filled it, blind
+
+
+class _Line:
+    """Three roles controllers in a hand loop (three positions on a line, lockstep, messages
+    one step old); robots in ``cut`` hear nobody and nobody hears them, and both sides
+    report each other lost at once, as a silent radio does after the lease."""
+
+    DT = 0.1
+
+    def __init__(self) -> None:
+        params = {"formations": (((-1.0, 0.0), (0.0, 0.0), (1.0, 0.0)),), "orientation": "given",
+                  "transform_every_task": False, "relay_positions": True, "consensus_hold_s": 0.5}
+        self.model = UnicycleModel(v_max=0.5, omega_max=3.4)
+        names = ("r1", "r2", "r3")
+        self.ctl = {n: RolesController(RobotContext(n, i, self.model, {}, None, (), names, self.DT, params))
+                    for i, n in enumerate(names)}
+        self.pose = {n: np.array(p) for n, p in zip(names, [(-2.0, -1.5, 0.0), (0.0, -1.5, 1.5), (2.0, -1.5, 3.0)])}
+        self.msgs: list[PeerMessage] = []
+        self.t = 0.0
+
+    def run(self, until: float, cut: frozenset[str] = frozenset()) -> dict[str, float]:
+        """Step to ``until``; the distance each robot drove."""
+        moved = dict.fromkeys(self.ctl, 0.0)
+        while self.t < until - 1e-9:
+            out, cmds = [], {}
+            for n, c in self.ctl.items():
+                lost = frozenset(self.ctl) - {n} if n in cut else frozenset(cut) - {n}
+                res = c.step(Observation(t=self.t, pose=self.pose[n], dt=self.DT, lost=lost),
+                             [m for m in self.msgs if m.sender != n and m.sender not in lost])
+                cmds[n] = res.command
+                out += [PeerMessage(n, o.kind, self.t, self.DT, o.payload, position=tuple(self.pose[n][:2]))
+                        for o in res.messages]
+            for n in self.ctl:
+                new = self.model.step(self.pose[n], cmds[n], self.DT)
+                moved[n] += float(np.hypot(*(new[:2] - self.pose[n][:2])))
+                self.pose[n] = new
+            self.msgs, self.t = out, self.t + self.DT
+        return moved
+
+    def distance(self, name: str) -> float:
+        return self.ctl[name].roles.distance(self.pose[name][:2])
+
+
+def test_a_controller_cut_off_far_from_its_position_holds_still_until_it_hears_again():
+    line = _Line()
+    line.run(2.0)
+    assert all(c.roles.phase == ASSIGNED for c in line.ctl.values())
+    assert line.distance("r1") > 0.6 and line.distance("r3") > 0.6  # R_max = 0.4 m
+    moved = line.run(5.0, cut=frozenset({"r1"}))
+    assert moved["r1"] == 0.0  # lost every other robot: its position may be someone else's by now
+    assert moved["r3"] > 0.3  # r3 lost only r1: it goes on
+    assert line.ctl["r3"].roles.gone.keys() == {"r1"}
+    line.run(12.0)  # heard again: its next claim lifts the tombstones, it drives on
+    assert all(not c.roles.gone for c in line.ctl.values())
+    assert max(line.distance(n) for n in line.ctl) < 0.05
+
+
+def test_a_controller_cut_off_within_r_max_of_its_position_drives_on():
+    line = _Line()
+    line.run(4.0)
+    assert 0.05 < line.distance("r1") < 0.4  # the others keep its position for it
+    moved = line.run(8.0, cut=frozenset({"r1"}))
+    assert moved["r1"] > 0.1 and line.distance("r1") < 0.05
 
 
 def test_a_released_position_is_skipped_by_later_merges_until_released_no_more():

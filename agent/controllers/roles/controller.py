@@ -31,7 +31,10 @@ knows N. A robot that hears a neighbour already working on a later task follows 
 A robot in ``Observation.lost`` leaves the graph, the consensus and the relayed
 assignment problem at once; the position it claimed is released (a tombstone that later
 merges respect, lifted when it is heard claiming again) and a robot without a position
-takes it (docs/ambiguities.md, A38).
+takes it (docs/ambiguities.md, A38). A robot that has lost every robot it knew cannot tell
+its own silent radio from their loss and applies the same rule to itself: unless it was
+within R_max of its position when it was last heard, its position has been released, so
+it holds still, a stationary obstacle like a dead robot, until it hears one again.
 """
 
 from __future__ import annotations
@@ -101,6 +104,9 @@ class RolesController:
         self.templates = [np.asarray(f, dtype=float).reshape(-1, 2) for f in self.cfg.formations]
         self.frames = [template_frame(T, self.cfg.isotropy) for T in self.templates]
         self.peers = PeerTable(self.cfg.neighbour_timeout_s)
+        self.team = frozenset(ctx.robots) - {ctx.name}
+        """The other robots of the scenario: used only to tell that this robot is cut off
+        from all of them (A38), never by the algorithm, which does not know N."""
         self.tasks = TaskSequence(self.cfg)
         self.agreement: Agreement | None = None
         """Phase 1 of the current task (None when the placement is kept across tasks)."""
@@ -240,7 +246,12 @@ class RolesController:
         waiting = False
         if roles.phase in (ASSIGNED, UNASSIGNED):
             waiting = self._negotiate(same, p)
-        if roles.phase == UNASSIGNED:
+        # cut off from every robot it knew (A38): it cannot tell which positions are free,
+        # and the others have released its own unless they last heard it within R_max of
+        # it; then it holds still until it hears one again
+        cut_off = self.peers.cut_off(self.team)
+        hold = cut_off and not roles.kept_while_lost(self.peers.last_stamp() - self.dt)
+        if roles.phase == UNASSIGNED and not cut_off:
             pos = roles.take_released(p, self._t, self.cfg.gather_s)
             if pos is not None:
                 self._take(pos, p)
@@ -248,7 +259,7 @@ class RolesController:
                 roles.check_park(p, same, self.cfg.park_clearance)
         # phase 3: navigation
         goal = roles.goal()
-        if goal is None or waiting:
+        if goal is None or waiting or hold:
             cmd = np.zeros(2)
         else:
             obstacles = [q.position for q in self.peers.fresh(self._t).values()] + self.peers.wrecks()
@@ -268,6 +279,7 @@ class RolesController:
         roles, tasks = self.roles, self.tasks
         th = float(pose[2])
         v = float(cmd[0])
+        roles.track_near(pose[:2], self._t, self.cfg.R_max)
         payload: dict[str, Any] = {
             "task": int(tasks.task),
             "index": self.index,

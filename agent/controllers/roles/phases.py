@@ -128,6 +128,18 @@ class PeerTable:
         still somewhere, so it stays an obstacle where it was last heard (A38)."""
         return [self.peers[n].position for n in sorted(self.lost) if n in self.peers]
 
+    def cut_off(self, team: frozenset[str]) -> bool:
+        """Every other robot of the team is lost (A38): most likely this robot's own radio
+        has gone quiet, not all of theirs, and the others have lost it in turn. (Its
+        neighbours alone would not do: in a range-limited graph a robot may have heard only
+        the one that was lost.)"""
+        return bool(team) and team <= self.lost
+
+    def last_stamp(self) -> float:
+        """Send stamp of the newest message heard from any robot [s] (-inf: none): a radio
+        that went quiet stopped both ways, so the others last heard this robot about then."""
+        return max((q.heard - q.age for q in self.peers.values()), default=-math.inf)
+
     def same_task(self, t: float, task: int) -> dict[str, Peer]:
         """Neighbours working on ``task`` (once per step and task: callers must not modify it)."""
         fresh = self.fresh(t)
@@ -281,6 +293,9 @@ class Assignment:
         """Tombstones (A38): lost robot -> stamp of its newest claim known when it was lost;
         a claim of that robot stamped later lifts it (it was heard again)."""
         self._lost_seen: frozenset[str] = frozenset()
+        self.near: tuple[int, float] | None = None
+        """(claimed position, since when) while this robot has announced itself within
+        ``R_max`` of it in every message (state :data:`ON_IT`), None otherwise."""
         self.avail_since = (tuple(), t)
         """(J^a_i, since when unchanged): a robot without a position waits ``gather_s``
         before it takes a released one."""
@@ -409,6 +424,22 @@ class Assignment:
         live = {c[0] for m, c in claims.items() if m not in gone}
         free = {claims[m][0] for m in gone if m in claims and claims[m][0] >= 0 and claims[m][2] != ON_IT}
         self.book.release(free - live)
+
+    def track_near(self, p: np.ndarray, t: float, at_tol: float) -> None:
+        """Record whether this step's message announces the robot within ``at_tol`` of its
+        position (:data:`ON_IT`), as the others judge it when they lose it."""
+        if self.phase == ASSIGNED and self.distance(p) <= at_tol:
+            if self.near is None or self.near[0] != self.position:
+                self.near = (self.position, t)
+        else:
+            self.near = None
+
+    def kept_while_lost(self, last_heard: float) -> bool:
+        """The others keep this robot's position after losing it (A38): it announced itself
+        within ``R_max`` of it from before ``last_heard`` (the stamp of the newest message
+        it heard, when its own last reached them) until now. The robot knows what it said,
+        so it applies to itself the rule the others apply to it."""
+        return self.near is not None and self.near[1] <= last_heard
 
     def claims_payload(self, t: float, p: np.ndarray, at_tol: float) -> dict[str, list]:
         """The claims table for the message, own entry first-hand (A38)."""

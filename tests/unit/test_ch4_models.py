@@ -363,6 +363,11 @@ def test_mpc_soft_terminal_constraint_and_parameters():
     assert res.ok and 0.2 - 1e-4 <= res.x[-1, 0] <= 0.3 + 1e-4 and res.slack.max() < 1e-4
     res = m.solve([0.0], p_stage=np.full((5, 1), 0.1))  # gain 0.1: at most 0.05 reachable
     assert res.ok and res.slack.max() > 0.1 and res.x[-1, 0] == pytest.approx(0.05, abs=1e-3)
+    # bounds of one solve: the region moved within reach needs no slack; the next solve has the OCP's again
+    res = m.solve([0.0], p_stage=np.full((5, 1), 0.1), hT_lb=[0.0], hT_ub=[0.04])
+    assert res.ok and res.slack.max() < 1e-4 and res.x[-1, 0] <= 0.04 + 1e-4
+    res = m.solve([0.0], p_stage=np.full((5, 1), 0.1))
+    assert res.ok and res.slack.max() > 0.1
 
 
 def test_solver_config_validation():

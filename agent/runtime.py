@@ -272,7 +272,7 @@ class RobotRuntime:
             for env in self._overhear.pop_ready(now) if self._overhear is not None else ():
                 if self.comm_range == 0 or math.hypot(env.pos[0] - pose[0], env.pos[1] - pose[1]) <= self.comm_range:
                     self.safety.hear(env.sender, env.pos, env.stamp, env.vel)
-            res = self.safety.apply(pose, cmd, now, ranges, self._angles)
+            res = self.safety.apply(pose, cmd, now, ranges, self._angles, self.lost)
             cmd = [float(c) for c in res.command]
             telemetry.update(safety_active=res.active, safety_change=res.change,
                              safety_ms=(time.perf_counter() - t0) * 1e3)

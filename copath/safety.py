@@ -832,6 +832,10 @@ class SafetyGuard:
         premise broken; docs/safety.md, "Committed plans")."""
         self.commit_excess_max = 0.0
         """Largest distance outside a committed tube [m]."""
+        self._lost_at: dict[str, float] = {}
+        """Robots lost (held still by the simulator) and when this robot first knew it [s]."""
+        self._back_at: dict[str, float] = {}
+        """Of those, the ones back (no longer lost, not heard since) and when this robot knew [s]."""
 
     def published(self, stamp: float, position, velocity) -> None:
         """Record a plan this robot published (the position and world velocity of its envelopes
@@ -912,45 +916,110 @@ class SafetyGuard:
                 self._vel.pop(sender, None)
 
     def neighbours(self, now: float) -> list[Neighbour]:
+        """What the filter knows of every robot heard, at ``now``: a disc around its heard or
+        predicted position (:meth:`_neighbour`), or, for a robot held still since it was lost, a
+        static disc (:meth:`_held`)."""
         out = []
-        for sender, (x, y, stamp) in sorted(self._heard.items()):
-            r, s, look = self._bounds[sender]
-            age = max(now - stamp, 0.0)
-            nb = None
-            prev = self._before.get(sender)
-            a_max, alpha_max, w_bound = self._limits[sender]
-            vel = self._vel.get(sender)
-            if self._commit and vel is not None and age < self._config.commit_horizon_s:
-                # the sender keeps within its committed tube around the arc it published
-                # (docs/safety.md, "committed plans"); with an enforced limit, the tighter of the two
-                speed = self._arcs[sender][0]
-                spread = commit_radius(self._config, age)
-                if a_max is not None:
-                    spread = min(spread, prediction_bound(age, speed, a_max, alpha_max, w_bound, self._dt))
-                if spread < s * age:
-                    cfg = self._config
-                    cv = plan_velocity(vel, age)
-                    grow = cfg.commit_speed_mps + cfg.commit_accel_mps2 * age
-                    # the disc's own acceleration: the arc's turn and the radius's growth
-                    acc = speed * abs(vel[2]) + cfg.commit_accel_mps2
-                    nb = Neighbour(self._predict(sender, x, y, age), age, r, s, spread, look, True,
-                                   (cv[0], cv[1], grow, acc))
-            elif a_max is not None and vel is not None:
-                # the sender's enforced acceleration limit and its sent velocity: a guaranteed,
-                # tighter disc around the predicted arc (docs/safety.md, "acceleration limits")
-                spread = prediction_bound(age, self._arcs[sender][0], a_max, alpha_max, w_bound, self._dt)
-                if spread < s * age:
-                    nb = Neighbour(self._predict(sender, x, y, age), age, r, s, spread, look, True)
-            elif self._accel is not None and prev is not None:
-                # velocity averaged over [t0, t1] is within accel * (t - t0) of the velocity at
-                # any t in [t1, now]: extrapolate and bound the error of the displacement
-                x0, y0, t0 = prev
-                vx, vy = (x - x0) / (stamp - t0), (y - y0) / (stamp - t0)
-                spread = self._accel * (now - t0) * age
-                if spread < s * age:
-                    nb = Neighbour((x + vx * age, y + vy * age), age, r, s, spread, look)
-            out.append(Neighbour((x, y), age, r, s, lookahead=look) if nb is None else nb)
+        for sender in sorted(self._heard):
+            nb = self._held(sender, now) if sender in self._lost_at else self._neighbour(sender, now)
+            if nb is not None:
+                out.append(nb)
         return out
+
+    def _neighbour(self, sender: str, now: float) -> Neighbour:
+        """The disc that holds ``sender`` at ``now`` by its last message (docs/safety.md)."""
+        x, y, stamp = self._heard[sender]
+        r, s, look = self._bounds[sender]
+        age = max(now - stamp, 0.0)
+        nb = None
+        prev = self._before.get(sender)
+        a_max, alpha_max, w_bound = self._limits[sender]
+        vel = self._vel.get(sender)
+        if self._commit and vel is not None and age < self._config.commit_horizon_s:
+            # the sender keeps within its committed tube around the arc it published
+            # (docs/safety.md, "committed plans"); with an enforced limit, the tighter of the two
+            speed = self._arcs[sender][0]
+            spread = commit_radius(self._config, age)
+            if a_max is not None:
+                spread = min(spread, prediction_bound(age, speed, a_max, alpha_max, w_bound, self._dt))
+            if spread < s * age:
+                cfg = self._config
+                cv = plan_velocity(vel, age)
+                grow = cfg.commit_speed_mps + cfg.commit_accel_mps2 * age
+                # the disc's own acceleration: the arc's turn and the radius's growth
+                acc = speed * abs(vel[2]) + cfg.commit_accel_mps2
+                nb = Neighbour(self._predict(sender, x, y, age), age, r, s, spread, look, True,
+                               (cv[0], cv[1], grow, acc))
+        elif a_max is not None and vel is not None:
+            # the sender's enforced acceleration limit and its sent velocity: a guaranteed,
+            # tighter disc around the predicted arc (docs/safety.md, "acceleration limits")
+            spread = prediction_bound(age, self._arcs[sender][0], a_max, alpha_max, w_bound, self._dt)
+            if spread < s * age:
+                nb = Neighbour(self._predict(sender, x, y, age), age, r, s, spread, look, True)
+        elif self._accel is not None and prev is not None:
+            # velocity averaged over [t0, t1] is within accel * (t - t0) of the velocity at
+            # any t in [t1, now]: extrapolate and bound the error of the displacement
+            x0, y0, t0 = prev
+            vx, vy = (x - x0) / (stamp - t0), (y - y0) / (stamp - t0)
+            spread = self._accel * (now - t0) * age
+            if spread < s * age:
+                nb = Neighbour((x + vx * age, y + vy * age), age, r, s, spread, look)
+        return Neighbour((x, y), age, r, s, lookahead=look) if nb is None else nb
+
+    def _held(self, sender: str, now: float) -> Neighbour | None:
+        """A robot lost (its liveliness token went), which the simulator holds still from then on,
+        as a static obstacle (docs/safety.md, "A lost robot"): it drove on, within the discs of
+        :meth:`_neighbour`, from its last stamp until it was held, at most one control period
+        after this robot learnt of the loss (the simulator and this robot learn of it from the
+        same token, each at its own next tick), and has not moved since. One disc covers all of
+        those: centred half-way along the path of their centres, with half that path's length
+        plus the largest of their radii (the last). Its centre is known and it does not move, so
+        it is kept out of with the whole gap (as a committed disc at rest), without the
+        stale-direction tightening, and is not forgotten with age. None when the hold came more
+        than ``max_age_s`` after the last message (forgotten, as any such robot).
+
+        Once it is back (a restarted process) and until its first new message is heard, it may
+        drive again from one period before this robot knew: that disc, inflated by its speed
+        bound times the time since, as a neighbour heard then."""
+        x, y, stamp = self._heard[sender]
+        age = max(self._lost_at[sender] + self._dt - stamp, 0.0)
+        if age > self._config.max_age_s:
+            return None
+        nb = self._neighbour(sender, stamp + age)
+        # the discs' centres run from (x, y) to nb.position, a path of length `run` (an arc at the
+        # sent speed, or a straight extrapolation); every point of it is within run / 2 of the
+        # chord's midpoint, and the discs' radii grow with the age up to the spread at `age`
+        end = nb.position
+        run = self._arcs[sender][0] * age if nb.predicted else math.hypot(end[0] - x, end[1] - y)
+        reach = 0.5 * run + _spread(nb)
+        a_max = self._limits[sender][0]
+        if a_max is not None:  # held at zero command, it brakes at a_max from at most its speed bound
+            reach += nb.speed_max**2 / (2.0 * a_max)
+        centre = (0.5 * (x + end[0]), 0.5 * (y + end[1]))
+        back = self._back_at.get(sender)
+        if back is None:
+            return Neighbour(centre, 0.0, nb.radius + reach, nb.speed_max, 0.0, nb.lookahead, False,
+                             (0.0, 0.0, 0.0, 0.0))
+        since = max(now - back, 0.0) + self._dt
+        if since > self._config.max_age_s:
+            return None
+        return Neighbour(centre, since, nb.radius + reach, nb.speed_max, nb.speed_max * since, nb.lookahead)
+
+    def _note_lost(self, lost, now: float) -> None:
+        """Remember when this robot first knew each robot lost; a robot is held until it is back
+        and has been heard again with a stamp from after that (a restarted process)."""
+        for name in lost:
+            if name != self.name and name in self._bounds:
+                self._lost_at.setdefault(name, float(now))
+                self._back_at.pop(name, None)
+        for name, t in list(self._lost_at.items()):
+            if name in lost:
+                continue
+            if name in self._heard and self._heard[name][2] >= t:
+                del self._lost_at[name]
+                self._back_at.pop(name, None)
+            else:
+                self._back_at.setdefault(name, float(now))
 
     def _predict(self, sender: str, x: float, y: float, age: float) -> tuple[float, float]:
         """:func:`predict_position` of the sender's last message ``age`` (>= 0) later, with the arc's
@@ -960,8 +1029,11 @@ class SafetyGuard:
             return x, y
         return _arc(x, y, speed, c, s, self._vel[sender][2], age)
 
-    def apply(self, pose, command, now: float, ranges=None, angles=None) -> SafetyResult:
-        """Filter one command and record the intervention."""
+    def apply(self, pose, command, now: float, ranges=None, angles=None, lost=()) -> SafetyResult:
+        """Filter one command and record the intervention. ``lost``: robots whose liveliness
+        token went (``Observation.lost`` less the merely silent ones), which the simulator holds
+        still: static obstacles from then on (:meth:`_held`)."""
+        self._note_lost(lost, now)
         tubes = self.tube_set(now)
         if len(tubes):
             q = np.array([float(pose[0]), float(pose[1])])

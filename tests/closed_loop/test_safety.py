@@ -242,3 +242,50 @@ def test_a_committed_neighbour_is_a_small_disc_on_its_arc_and_the_promise_is_val
     guard.published(0.0, (0.0, 0.0, 0.0), vel)
     guard.apply((0.0, 0.0, 0.0), [0.0, 0.0], 2.0)
     assert guard.counters()["safety_commit_breaks"] == 1
+
+
+def test_a_lost_robot_held_still_is_a_static_disc_passed_and_not_forgotten():
+    """Robot b sends its position and velocity (0.4 m/s along x) up to t = 1 s, then its
+    liveliness goes: the simulator holds it where it is then (it drove on with its last command
+    for one period). Robot a drives at it along x at 0.5 m/s, 0.1 m off its line, from 1 s to
+    9 s, long after ``max_age_s``: the filter keeps b as a static disc around where it may have
+    stopped (SafetyGuard._held; docs/safety.md, "A lost robot"), so a goes round it without
+    touching it, and comes close. Before, b was forgotten after max_age_s and a drove into it."""
+    from copath.models import OmniModel, integrate_body_velocity
+    from copath.safety import SafetyConfig, SafetyGuard
+
+    dt = 0.1
+    model = OmniModel()  # E5.1's robots
+    models = {"a": model, "b": model}
+    r = model.radius
+    guard = SafetyGuard(SafetyConfig(enabled=True, accel_max_mps2=1.5), "a", models, dt)
+    vel_b = (0.4, 0.0, 0.0)
+    for k in range(11):  # b's messages, t = 0 .. 1 s
+        guard.hear("b", (0.4 * k * dt, 0.0), k * dt, vel_b)
+    b_held = np.array([0.4 * 1.1, 0.0])  # it applied its last command for one more period
+    pose = np.array([-1.5, 0.1, 0.0])
+    nominal = [0.5, 0.0, 0.0]
+    gaps, lost = [], frozenset({"b"})
+    for k in range(11, 91):  # t = 1.1 .. 9 s: a learns of the loss at its first step after it
+        res = guard.apply(pose, nominal, k * dt, lost=lost)
+        pose = np.asarray(integrate_body_velocity(pose, np.asarray(res.command, dtype=float), dt), dtype=float)
+        gaps.append(float(np.hypot(*(pose[:2] - b_held))))
+        if k * dt == pytest.approx(3.2):
+            (nb,) = guard.neighbours(k * dt)  # 2.2 s after its last message: still there, at rest
+            assert nb.committed == (0.0, 0.0, 0.0, 0.0)
+            assert np.hypot(*(np.asarray(nb.position) - b_held)) + r < nb.radius  # it holds b's disc
+    gaps = np.array(gaps)
+    assert gaps.min() >= 2 * r + 0.01  # the footprints and the margin
+    # it really passed close: the held disc is b's footprint grown by half the 0.08 m it may
+    # have driven on (0.2 s at 0.4 m/s) and the extrapolation's 0.09 m spread at 0.2 s
+    assert gaps.min() < 2 * r + 0.01 + 0.04 + 0.09 + 0.02
+    assert pose[0] > b_held[0] + 0.2 and gaps[-1] > gaps.min() + 0.1  # and went on past it
+    # back (a restarted process) but not heard yet: b may drive again, a disc growing at its speed bound
+    guard.apply(pose, nominal, 9.1, lost=frozenset())
+    (nb,) = guard.neighbours(9.3)
+    assert nb.committed is None and nb.spread == pytest.approx(nb.speed_max * (0.2 + dt))
+    # heard with a new stamp: an ordinary neighbour again
+    guard.hear("b", (0.5, 0.0), 9.2, (0.0, 0.0, 0.0))
+    guard.apply(pose, nominal, 9.3, lost=frozenset())
+    (nb,) = guard.neighbours(9.3)
+    assert nb.position == pytest.approx((0.5, 0.0)) and nb.radius == model.radius

@@ -69,6 +69,11 @@ robot keeps out of by itself, with the whole gap: ``n^T (pdot - c') - e' >= -gam
 promise, as the assumed trajectories of the DMPC (Sec. 5.4) and the compatibility constraints
 of Dunbar and Murray (Automatica 42(4), 2006) let neighbours plan against each other.
 
+A robot whose liveliness went (its process died or froze; ``continue``/``restart``) is held still
+by the simulator: it is a static disc round where it may have stopped, kept out of with the
+whole gap and never forgotten with age (:meth:`SafetyGuard._held`; docs/safety.md, "A lost
+robot"), instead of a position that ages and is forgotten after ``max_age_s``.
+
 Deadlock rule (after Wang, Ames and Egerstedt 2017, Sec. VI): when a barrier slows the
 robot, the QP is solved once more with ``u_ref`` the nominal velocity of the steered point
 turned to the right by ``deadlock_turn_rad``; fixed and decentralised, so symmetric jams
@@ -189,9 +194,11 @@ class Neighbour:
     position: tuple[float, float]
     """Centre [x, y] the robot sent [m]."""
     age: float
-    """Receiver's clock minus the message's stamp [s]."""
+    """Receiver's clock minus the message's stamp [s] (0 for a lost robot held still: its disc
+    holds now and later)."""
     radius: float
-    """Its footprint radius [m]."""
+    """Its footprint radius [m] (for a lost robot held still, grown to cover where it may have
+    stopped)."""
     speed_max: float
     """Bound on its speed [m/s] (inflates its disc by speed_max * age)."""
     spread: float | None = None

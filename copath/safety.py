@@ -1000,13 +1000,16 @@ class SafetyGuard:
         run = self._arcs[sender][0] * age if nb.predicted else math.hypot(end[0] - x, end[1] - y)
         reach = 0.5 * run + _spread(nb)
         a_max = self._limits[sender][0]
-        if a_max is not None:  # held at zero command, it brakes at a_max from at most its speed bound
-            reach += nb.speed_max**2 / (2.0 * a_max)
+        if a_max is not None:
+            # held at zero command, it brakes at a_max from its speed at the hold: within a_max of
+            # the sent one per second since up to a period before the stamp (prediction_bound's lag)
+            vel = self._vel.get(sender)
+            v_hold = nb.speed_max if vel is None else min(nb.speed_max, self._arcs[sender][0] + a_max * (age + self._dt))
+            reach += v_hold**2 / (2.0 * a_max)
         centre = (0.5 * (x + end[0]), 0.5 * (y + end[1]))
         back = self._back_at.get(sender)
-        if back is None:
-            return Neighbour(centre, 0.0, nb.radius + reach, nb.speed_max, 0.0, nb.lookahead, False,
-                             (0.0, 0.0, 0.0, 0.0))
+        if back is None:  # at rest, its centre is the point to keep off: no look-ahead of its own
+            return Neighbour(centre, 0.0, nb.radius + reach, nb.speed_max, 0.0, 0.0, False, (0.0, 0.0, 0.0, 0.0))
         since = max(now - back, 0.0) + self._dt
         if since > self._config.max_age_s:
             return None

@@ -279,7 +279,8 @@ class RolesController:
         roles, tasks = self.roles, self.tasks
         th = float(pose[2])
         v = float(cmd[0])
-        roles.track_near(pose[:2], self._t, self.cfg.R_max)
+        d = roles.distance(pose[:2])  # inf without a position
+        roles.track_near(d, self._t, self.cfg.R_max)
         payload: dict[str, Any] = {
             "task": int(tasks.task),
             "index": self.index,
@@ -289,7 +290,7 @@ class RolesController:
             "deg": len(same),
             **tasks.payload(),
             "claim": int(roles.position),
-            "d": float(roles.distance(pose[:2])) if roles.phase == ASSIGNED else 1e9,
+            "d": float(d) if roles.phase == ASSIGNED else 1e9,
             "taken": sorted(int(k) for k in roles.book.taken),
             "gone": {m: float(s) for m, s in sorted(roles.gone.items())},
             "park": [float(c) for c in roles.park] if roles.park is not None else [],

@@ -425,10 +425,11 @@ class Assignment:
         free = {claims[m][0] for m in gone if m in claims and claims[m][0] >= 0 and claims[m][2] != ON_IT}
         self.book.release(free - live)
 
-    def track_near(self, p: np.ndarray, t: float, at_tol: float) -> None:
-        """Record whether this step's message announces the robot within ``at_tol`` of its
-        position (:data:`ON_IT`), as the others judge it when they lose it."""
-        if self.phase == ASSIGNED and self.distance(p) <= at_tol:
+    def track_near(self, d: float, t: float, at_tol: float) -> None:
+        """Record whether this step's message, which says the robot is ``d`` from its
+        position, announces it within ``at_tol`` (:data:`ON_IT`), as the others judge it
+        when they lose it."""
+        if self.phase == ASSIGNED and d <= at_tol:
             if self.near is None or self.near[0] != self.position:
                 self.near = (self.position, t)
         else:

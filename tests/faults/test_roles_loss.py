@@ -16,9 +16,15 @@ import numpy as np
 from agent.controllers.roles.assignment import RoleBook
 from agent.controllers.roles.controller import RolesController
 from agent.controllers.roles.phases import ASSIGNED, EN_ROUTE, Assignment, Peer, PeerTable
+from agent.node import AgentNode
+from agent.runtime import RobotRuntime
 from copath.control import Observation, PeerMessage, RobotContext
 from copath.models import UnicycleModel
+from copath.wire.keys import Keys
+from copath.wire.link import MemoryBus
 from orchestrator import api
+from orchestrator.metrics import compute_metrics, trace_from_records
+from sim.node import SimNode
 
 SCENARIO = "e6.3-roles-circle-surplus-robots"
 
@@ -102,6 +108,46 @@ def test_a_robot_cut_off_next_to_its_position_keeps_it_and_drives_on():
     assert not [name for name, seq in claims.items() if name != "r5" and any(t > 12.0 and pos == k for t, pos in seq)]
     G = _final_targets(run)
     assert float(np.hypot(*(G[k] - run.poses()["r5"][-1, 1:3]))) < 0.05  # r5 filled it, blind
+
+
+def _killed(name: str, t_kill: float) -> tuple[dict, dict[str, np.ndarray]]:
+    """E6.3 in one process, ``continue``; ``name``'s process goes away at ``t_kill`` (its link
+    closes: its token disappears, the simulator holds it still). Metrics and true poses."""
+    scen = api.load(SCENARIO, {"run.on_robot_failure": "continue"})
+    keys, sim = Keys("killed"), None
+    bus = MemoryBus(clock=lambda: sim.world.t)
+    agents = {n: AgentNode(RobotRuntime(scen, n, keys), keys, bus.link(), "lockstep") for n in scen.robot_names}
+    k_kill = int(round(t_kill / scen.run.dt))
+
+    def tick(k):
+        if k == k_kill:
+            agents[name].link.close()
+
+    sim = SimNode(scen, keys, bus.link(), on_tick=tick)
+    for a in agents.values():
+        a.start()
+    try:
+        assert sim.run()
+    finally:
+        for a in agents.values():
+            a.link.close()
+        sim.link.close()
+    trace = trace_from_records(bus.records, keys)
+    metrics = compute_metrics(trace, scen, run_id="killed", clock="lockstep", wall_time_s=0.0,
+                              messages_published=None, messages_recorded=None)
+    return metrics, {n: np.column_stack([rt.t, rt.pose]) for n, rt in trace.robots.items()}
+
+
+def test_a_dead_robot_is_passed_like_a_silent_one():
+    """The others cannot tell a dead robot from a silent one: the same release, and the dead
+    one stands where the silent one holds itself still."""
+    metrics, poses = _killed("r5", 11.0)
+    fleet = metrics["fleet"]
+    assert fleet["collisions"] == 0 and fleet["min_separation_m"] > 0.25
+    assert fleet["tasks_completed"] == 1  # r5 stopped 0.41 m from its position: released, and filled by another
+    P = poses["r5"]
+    still = P[P[:, 0] >= 11.2, 1:3]
+    assert float(np.max(np.hypot(*(still - still[0]).T))) < 1e-3
 
 
 class _Line:

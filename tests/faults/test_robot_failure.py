@@ -68,8 +68,12 @@ def test_continue_goes_on_without_the_lost_robot(tmp_path, procs, sig):
     assert detection_s < (0.5 if sig == signal.SIGKILL else 1.6), detection_s  # lease 1 s when frozen
     assert m["robots"]["r3"]["outage_s"] > 5 and m["robots"]["r3"]["restarts"] == 0
     assert m["robots"]["r1"]["outage_s"] == 0
-    for n in ("r1", "r2"):  # the others keep following their paths (r2 skirts the stopped r3)
-        assert m["robots"][n]["path_error_max_m"] < 0.2
+    # the others go on along their paths and go round the stopped r3, which their safety
+    # filters keep as a static disc (docs/safety.md, "A lost robot"): off the path only to
+    # pass it (0.38-0.45 m measured; before, they kept within 0.2 m by driving through it)
+    assert m["fleet"]["collisions"] == 0
+    for n in ("r1", "r2"):
+        assert m["robots"][n]["path_error_max_m"] < 0.6
 
 
 def test_restart_brings_the_robot_back(tmp_path, procs):

@@ -8,7 +8,10 @@ feeds it directly, so both run the exact same logic:
 2. at a control instant, released messages from beyond the communication range are
    dropped (Def. 10: the sender's position travels in the envelope, no oracle);
 3. the controller steps; an exception inside it is logged and counted and the robot
-   stops for that step (it never kills the process);
+   stops for that step (it never kills the process); a robot that has lost every other
+   robot (cut off: its own radio most likely went quiet) commands zero until it hears one
+   again, unless its controller handles that itself (``handles_cut_off``; docs/faults.md,
+   "Gone quiet");
 4. with ``[safety]`` on, the command passes the decentralised safety filter
    (``copath.safety``), fed with the sender positions of every peer envelope the robot
    overhears (:attr:`RobotRuntime.overhear_subscriptions`, its own fault streams and the
@@ -25,7 +28,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from agent.controllers import build_controller
+from agent.controllers import build_controller, resolve_controller
+from copath.config import ConfigError
 from copath.control import Observation, PeerMessage, RobotContext
 from copath.estimation import PoseEKF
 from copath.paths import wrap_to_pi
@@ -42,7 +46,28 @@ logger = logging.getLogger(__name__)
 _OVERHEAR_SEED = 7919
 """Offset of the seed of the safety filter's own fault streams (independent of the controller's)."""
 
-__all__ = ["RobotRuntime", "StepOutput", "sensor_angles"]
+__all__ = ["RobotRuntime", "StepOutput", "handles_cut_off", "sensor_angles", "silent_hold_s"]
+
+
+def silent_hold_s(scenario: Scenario) -> float:
+    """The latest a robot gone quiet holds itself still, after the stamp of its last message
+    heard [s] (docs/safety.md, "A lost robot"): its radio went quiet within one period after
+    that stamp; the last message it received arrived within the network's largest delay
+    (``delay_ms`` + ``jitter_ms``) after that and was read at its next step; it is cut off at
+    the first step more than one lease (``run.lease_s``) later."""
+    net, dt = scenario.network, scenario.run.dt
+    return float(scenario.run.lease_s) + (net.delay_ms + net.jitter_ms) * 1e-3 + 3.0 * dt
+
+
+def handles_cut_off(scenario: Scenario, name: str) -> bool:
+    """Whether robot ``name``'s controller handles being cut off itself: its parameter
+    dataclass says so (``handles_cut_off = True``, a class constant; the roles controller,
+    docs/ambiguities.md A38). Read from the scenario, so every robot knows it of every other."""
+    try:
+        cfg = resolve_controller(scenario.robot(name).controller).parse(RobotContext.for_robot(scenario, name))
+    except ConfigError:  # reported where that robot's controller is built
+        return False
+    return bool(getattr(cfg, "handles_cut_off", False))
 
 
 def sensor_angles(count: int) -> np.ndarray:
@@ -134,7 +159,9 @@ class RobotRuntime:
         as the simulator does), for the velocity in its envelopes."""
         self._raw_pose: np.ndarray | None = None
         self.safety = (SafetyGuard(scenario.safety, name, {r.name: r.model for r in scenario.robots}, self.dt,
-                                   scenario.sensors.count if scenario.sensors.enabled else 0)
+                                   scenario.sensors.count if scenario.sensors.enabled else 0,
+                                   silent_hold_s(scenario), frozenset(r for r in scenario.robot_names
+                                                                      if r != name and handles_cut_off(scenario, r)))
                        if scenario.safety.enabled else None)
         # the filter reads the sender position of every envelope it overhears, through fault
         # streams of its own (another seed), so the controller's messages are the same with or
@@ -143,6 +170,18 @@ class RobotRuntime:
                           if self.safety is not None and scenario.safety.overhear else None)
         self._listened = frozenset(scenario.robot_names if self.neighbours is None else self.neighbours)
         """Senders whose envelopes also reach :meth:`receive` (which counts their bad stamps)."""
+        self._team = frozenset(scenario.robot_names) - {name}
+        """Every other robot of the scenario. Having lost every one of them it has heard (in its
+        inbox or overheard) is being cut off; one it never heard cannot be lost."""
+        self._holds = not handles_cut_off(scenario, name) and silent_hold_s(scenario) <= scenario.safety.max_age_s
+        """Whether the runtime holds the robot still when it is cut off: its controller does not
+        handle that itself, and the others' safety filters can keep the hold (they keep a robot
+        gone quiet as held only while the hold is younger than ``safety.max_age_s``; with a
+        slower network they forget it, and a hold would only cost coordination)."""
+        self.cut_off = False
+        self._overheard_at: dict[str, float] = {}
+        """When an overheard envelope of each sender was last delivered to the filter."""
+        """Every robot of :attr:`_team` is lost here (at least one was heard before)."""
 
     @property
     def subscriptions(self) -> list[str]:
@@ -245,6 +284,11 @@ class RobotRuntime:
         self.counters.delivered += len(inbox)
         silence_events = self._losses(now)
         lost = lost | frozenset(self._silent)
+        cut = self._cut_off(now)
+        if cut != self.cut_off:
+            self.cut_off = cut
+            silence_events.append(Event(float(now), self.name, "cut_off" if cut else "reconnected",
+                                        {"held": self._holds}))
         ranges = None if obs.ranges is None else np.asarray(obs.ranges, dtype=float)
         observation = Observation(
             t=now,
@@ -267,13 +311,19 @@ class RobotRuntime:
             self.counters.controller_errors += 1
             cmd, messages, telemetry = [0.0] * self._cmd_size, [], {"solver_ok": False}
         solve_ms = (time.perf_counter() - t0) * 1e3
+        hold = cut and self._holds
+        if hold:  # cut off: it cannot coordinate nor see the others; it stops where the others expect it
+            cmd = [0.0] * self._cmd_size
+            telemetry["cut_off"] = True
         if self.safety is not None:
             t0 = time.perf_counter()
             for env in self._overhear.pop_ready(now) if self._overhear is not None else ():
+                self._overheard_at[env.sender] = now
                 if self.comm_range == 0 or math.hypot(env.pos[0] - pose[0], env.pos[1] - pose[1]) <= self.comm_range:
                     self.safety.hear(env.sender, env.pos, env.stamp, env.vel)
-            res = self.safety.apply(pose, cmd, now, ranges, self._angles, self.lost)
-            cmd = [float(c) for c in res.command]
+            res = self.safety.apply(pose, cmd, now, ranges, self._angles, self.lost, self._quiet_for_filter(now))
+            if not hold:  # a held robot keeps still: the others keep out of its disc
+                cmd = [float(c) for c in res.command]
             telemetry.update(safety_active=res.active, safety_change=res.change,
                              safety_ms=(time.perf_counter() - t0) * 1e3)
         self.counters.steps += 1
@@ -302,6 +352,33 @@ class RobotRuntime:
             estimate,
             self._fault_events(now) + silence_events,
         )
+
+    def _cut_off(self, now: float) -> bool:
+        """Every robot this robot has heard is lost, at least one by silence (docs/faults.md,
+        "Gone quiet"). Heard: in its inbox or, with the safety filter overhearing, in any
+        envelope it overheard (a follower that hears only the leader is not cut off when the
+        leader goes quiet: it still overhears the others). A robot whose every peer died is
+        not cut off: its liveliness news came through, it hears the network."""
+        silent = False
+        for r in self._team:
+            if r in self.lost:
+                continue
+            t = max(self._heard.get(r, -math.inf), self._overheard_at.get(r, -math.inf))
+            if t == -math.inf:
+                continue  # never heard: cannot be lost
+            if now - t <= self._silent_after + 1e-9:
+                return False  # heard within the lease
+            silent = True
+        return silent
+
+    def _quiet_for_filter(self, now: float) -> frozenset[str]:
+        """Robots gone quiet for the safety filter: with overhearing, those whose every
+        envelope (to anyone) has been missing for the lease (a follower that only talks to the
+        leader is heard by the others' filters, not by their controllers); else :attr:`_silent`."""
+        if self._overhear is None:
+            return frozenset(self._silent)
+        return frozenset(s for s, t in self._overheard_at.items()
+                         if s not in self.lost and now - t > self._silent_after + 1e-9)
 
     def _losses(self, now: float) -> list[Event]:
         """What this robot knows of lost robots, as events when it changes (docs/faults.md):

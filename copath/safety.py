@@ -72,7 +72,10 @@ of Dunbar and Murray (Automatica 42(4), 2006) let neighbours plan against each o
 A robot whose liveliness went (its process died or froze; ``continue``/``restart``) is held still
 by the simulator: it is a static disc round where it may have stopped, kept out of with the
 whole gap and never forgotten with age (:meth:`SafetyGuard._held`; docs/safety.md, "A lost
-robot"), instead of a position that ages and is forgotten after ``max_age_s``.
+robot"), instead of a position that ages and is forgotten after ``max_age_s``. A robot gone
+quiet (no message for the lease) is kept alike: every robot holds itself still once it has
+lost every other one (the runtime's cut-off rule), so a silent robot stops at a time the others
+can bound from its last stamp (``silent_hold_s`` later; docs/safety.md, "A lost robot").
 
 Deadlock rule (after Wang, Ames and Egerstedt 2017, Sec. VI): when a barrier slows the
 robot, the QP is solved once more with ``u_ref`` the nominal velocity of the steered point
@@ -88,7 +91,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Mapping, Sequence
+from typing import Iterable, Mapping, Sequence
 
 import numpy as np
 
@@ -794,10 +797,19 @@ class SafetyGuard:
         Control period [s].
     sensor_count : int
         Number of range readings per observation (0 without sensors).
+    silent_hold_s : float or None
+        For a robot gone quiet: how long after its last stamp it holds itself still at the
+        latest (cut off: docs/safety.md, "A lost robot"); None, or more than ``max_age_s``
+        (a disc that large is a wall, not a robot), keeps a silent robot as any other,
+        forgotten after ``max_age_s``.
+    own_rule : Iterable[str]
+        Robots whose controllers handle being cut off themselves (they may drive on): kept
+        as any other when silent.
     """
 
     def __init__(self, config: SafetyConfig, name: str, models: Mapping[str, OmniModel | UnicycleModel],
-                 dt: float, sensor_count: int = 0) -> None:
+                 dt: float, sensor_count: int = 0, silent_hold_s: float | None = None,
+                 own_rule: Iterable[str] = ()) -> None:
         self.name = name
         own = models[name]
         # rows per neighbour: omni 6 (stale directions); unicycle 2 (both signs of v), + 1 look-ahead row
@@ -843,6 +855,11 @@ class SafetyGuard:
         """Robots lost (held still by the simulator) and when this robot first knew it [s]."""
         self._back_at: dict[str, float] = {}
         """Of those, the ones back (no longer lost, not heard since) and when this robot knew [s]."""
+        self._silent_hold = (float(silent_hold_s) if silent_hold_s is not None and silent_hold_s <= config.max_age_s
+                             else None)
+        self._own_rule = frozenset(own_rule)
+        self._quiet: set[str] = set()
+        """Of :attr:`_lost_at`, the robots lost by silence (they hold themselves still, cut off)."""
 
     def published(self, stamp: float, position, velocity) -> None:
         """Record a plan this robot published (the position and world velocity of its envelopes
@@ -983,15 +1000,21 @@ class SafetyGuard:
         plus the largest of their radii (the last). Its centre is known and it does not move, so
         it is kept out of with the whole gap (as a committed disc at rest), without the
         stale-direction tightening, and is not forgotten with age. None when the hold came more
-        than ``max_age_s`` after the last message (forgotten, as any such robot).
+        than ``max_age_s`` after the last message (forgotten, as any such robot). A robot gone quiet
+        holds itself still once cut off, at the latest ``silent_hold_s`` after its last stamp: the
+        same disc with that age (docs/safety.md, "A lost robot").
 
         Once it is back (a restarted process) and until its first new message is heard, it may
         drive again from one period before this robot knew: that disc, inflated by its speed
         bound times the time since, as a neighbour heard then."""
         x, y, stamp = self._heard[sender]
-        age = max(self._lost_at[sender] + self._dt - stamp, 0.0)
-        if age > self._config.max_age_s:
-            return None
+        quiet = sender in self._quiet
+        if quiet:  # it holds itself still once cut off: silent_hold_s after its last stamp at the latest
+            age = self._silent_hold
+        else:
+            age = max(self._lost_at[sender] + self._dt - stamp, 0.0)
+            if age > self._config.max_age_s:
+                return None
         nb = self._neighbour(sender, stamp + age)
         # the discs' centres run from (x, y) to nb.position, a path of length `run` (an arc at the
         # sent speed, or a straight extrapolation); every point of it is within run / 2 of the
@@ -1015,19 +1038,29 @@ class SafetyGuard:
             return None
         return Neighbour(centre, since, nb.radius + reach, nb.speed_max, nb.speed_max * since, nb.lookahead)
 
-    def _note_lost(self, lost, now: float) -> None:
+    def _note_lost(self, lost, now: float, silent=()) -> None:
         """Remember when this robot first knew each robot lost; a robot is held until it is back
-        and has been heard again with a stamp from after that (a restarted process)."""
-        for name in lost:
+        and has been heard again with a stamp from after that (a restarted process, a radio
+        heard again). A silent robot is held only if it was heard here (its last stamp is the
+        hold's origin) and :attr:`_silent_hold` is set."""
+        if self._silent_hold is not None:
+            silent = [n for n in silent if n not in lost and n in self._heard and n not in self._own_rule]
+        else:
+            silent = ()
+        for name in (*lost, *silent):
             if name != self.name and name in self._bounds:
                 self._lost_at.setdefault(name, float(now))
                 self._back_at.pop(name, None)
+        self._quiet = {n for n in self._quiet if n in self._lost_at and n not in lost}
+        self._quiet.update(n for n in silent if n != self.name and n in self._bounds)
+        gone = set(lost) | set(silent)
         for name, t in list(self._lost_at.items()):
-            if name in lost:
+            if name in gone:
                 continue
             if name in self._heard and self._heard[name][2] >= t:
                 del self._lost_at[name]
                 self._back_at.pop(name, None)
+                self._quiet.discard(name)
             else:
                 self._back_at.setdefault(name, float(now))
 
@@ -1039,11 +1072,13 @@ class SafetyGuard:
             return x, y
         return _arc(x, y, speed, c, s, self._vel[sender][2], age)
 
-    def apply(self, pose, command, now: float, ranges=None, angles=None, lost=()) -> SafetyResult:
+    def apply(self, pose, command, now: float, ranges=None, angles=None, lost=(), silent=()) -> SafetyResult:
         """Filter one command and record the intervention. ``lost``: robots whose liveliness
         token went (``Observation.lost`` less the merely silent ones), which the simulator holds
-        still: static obstacles from then on (:meth:`_held`)."""
-        self._note_lost(lost, now)
+        still: static obstacles from then on (:meth:`_held`). ``silent``: robots not heard for
+        the lease, which hold themselves still once cut off: static obstacles too, from
+        ``silent_hold_s`` after their last stamp."""
+        self._note_lost(lost, now, silent)
         tubes = self.tube_set(now)
         if len(tubes):
             q = np.array([float(pose[0]), float(pose[1])])

@@ -509,3 +509,30 @@ def test_filter_takes_tubes_as_objects_or_arrays_alike():
     a = f.filter([0.0, 0.0, 0.0], [0.5, 0.8], (), tubes=tubes)
     b = f.filter([0.0, 0.0, 0.0], [0.5, 0.8], (), tubes=TubeSet.of(tubes))
     assert a.active and np.array_equal(a.command, b.command)
+
+
+def test_a_silent_robot_is_held_as_a_static_disc_until_heard_again():
+    """A robot gone quiet holds itself still once cut off, at the latest ``silent_hold_s``
+    after its last stamp (docs/safety.md, "A lost robot"): a static disc covering where it
+    may have driven by then, not forgotten with age; heard again, an ordinary neighbour."""
+    models = {"a": OmniModel(), "b": OmniModel(), "c": OmniModel()}
+    cfg = SafetyConfig(enabled=True, speed_max_mps=1.0)
+    g = SafetyGuard(cfg, "a", models, 0.1, silent_hold_s=1.3, own_rule=("c",))
+    g.hear("b", (2.0, 0.0), 5.0)
+    g.hear("c", (0.0, 2.0), 5.0)
+    g.apply((0.0, 0.0, 0.0), [0.0, 0.0, 0.0], 6.1, silent={"b", "c"})
+    for now in (9.0, 20.0):  # long after max_age_s (2 s): what the filter still keeps
+        nbs = {nb.position: nb for nb in g.neighbours(now) if nb.age <= cfg.max_age_s}
+        assert list(nbs) == [(2.0, 0.0)]  # c (its own rule) is forgotten as before; b is held
+        held = nbs[(2.0, 0.0)]
+        assert held.age == 0.0 and held.radius == pytest.approx(models["b"].radius + 1.3 * 1.0)
+    g.apply((0.0, 0.0, 0.0), [0.0, 0.0, 0.0], 20.0, silent={"b", "c"})
+    g.hear("b", (2.5, 0.0), 20.05)  # its radio is back
+    g.apply((0.0, 0.0, 0.0), [0.0, 0.0, 0.0], 20.1, silent=())
+    nb = next(nb for nb in g.neighbours(20.1) if nb.position == (2.5, 0.0))
+    assert nb.age == pytest.approx(0.05) and nb.radius == models["b"].radius
+    # without silent_hold_s (or above max_age_s) a silent robot is forgotten as before
+    g2 = SafetyGuard(cfg, "a", models, 0.1, silent_hold_s=2.5)
+    g2.hear("b", (2.0, 0.0), 5.0)
+    g2.apply((0.0, 0.0, 0.0), [0.0, 0.0, 0.0], 6.1, silent={"b"})
+    assert not [nb for nb in g2.neighbours(9.0) if nb.age <= cfg.max_age_s]

@@ -160,7 +160,8 @@ class RobotRuntime:
         self._raw_pose: np.ndarray | None = None
         self.safety = (SafetyGuard(scenario.safety, name, {r.name: r.model for r in scenario.robots}, self.dt,
                                    scenario.sensors.count if scenario.sensors.enabled else 0,
-                                   silent_hold_s(scenario), frozenset(r for r in scenario.robot_names
+                                   silent_hold_s(scenario) if scenario.run.cut_off == "hold" else None,
+                                   frozenset(r for r in scenario.robot_names
                                                                       if r != name and handles_cut_off(scenario, r)))
                        if scenario.safety.enabled else None)
         # the filter reads the sender position of every envelope it overhears, through fault
@@ -173,7 +174,8 @@ class RobotRuntime:
         self._team = frozenset(scenario.robot_names) - {name}
         """Every other robot of the scenario. Having lost every one of them it has heard (in its
         inbox or overheard) is being cut off; one it never heard cannot be lost."""
-        self._holds = not handles_cut_off(scenario, name) and silent_hold_s(scenario) <= scenario.safety.max_age_s
+        self._holds = (scenario.run.cut_off == "hold" and not handles_cut_off(scenario, name)
+                       and silent_hold_s(scenario) <= scenario.safety.max_age_s)
         """Whether the runtime holds the robot still when it is cut off: its controller does not
         handle that itself, and the others' safety filters can keep the hold (they keep a robot
         gone quiet as held only while the hold is younger than ``safety.max_age_s``; with a

@@ -6,7 +6,9 @@ The TOML layout (every table optional unless said)::
     experiment = "e5.5"              # optional: the dissertation experiment it reproduces
     title = "..."
     [run]       duration_s, dt, clock ("lockstep" | "realtime"), settle_s, seed,
-                tick_timeout_s, rate_hz (realtime controller rate; default 1/dt)
+                tick_timeout_s, rate_hz (realtime controller rate; default 1/dt),
+                until, secure, on_robot_failure, watchdog_s, lease_s, liveliness_grace_s,
+                cut_off ("hold" | "drive"; docs/faults.md)
     [network]   delay_ms, jitter_ms, loss, burst_p_gb, burst_p_bg, burst_loss,
                 range_m (0 = fixed graph from robots.neighbours),
                 partitions = [{links = [["r1", "r2"]], start_s, end_s}],
@@ -71,6 +73,7 @@ __all__ = [
 CLOCKS = ("lockstep", "realtime")
 UNTILS = ("duration", "tasks_done")
 FAILURE_POLICIES = ("fail", "continue", "restart")
+CUT_OFF_RULES = ("hold", "drive")
 _ID_RE = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]*")
 _CONTROLLER_RE = re.compile(r"[A-Za-z_][\w.-]*|[A-Za-z_][\w.]*:[A-Za-z_]\w*")
 _EXPERIMENT_RE = re.compile(r"e[4-6]\.[0-9]+")
@@ -123,8 +126,13 @@ class RunConfig:
     back within this time [s]: a transport reset under CPU starvation (the 1 s lease lapses,
     the client reconnects) is not a loss (docs/faults.md). Under ``continue``/``restart`` the
     simulator holds the robot still at once and lets it rejoin, as before."""
-    """Fleet runs: per-run credentials and access control on the run's router, so only the
-    simulator publishes observations and each robot only its own keys (docs/security.md)."""
+    cut_off: str = "hold"
+    """What a robot does once it has lost every other robot it has heard, at least one by
+    radio silence: ``hold`` (default) stops it until it hears one again, and every safety
+    filter keeps a silent robot as a static disc round where it may have stopped (it cannot
+    be seen, nor coordinate); ``drive`` lets its controller drive on, blind, and the filters
+    forget it after ``safety.max_age_s`` (docs/faults.md, "Gone quiet"; docs/safety.md).
+    A robot's controller may handle being cut off itself (roles, docs/ambiguities.md A38)."""
 
     def __post_init__(self) -> None:
         require(self.duration_s > 0, "run.duration_s", self.duration_s, "must be > 0")
@@ -141,6 +149,7 @@ class RunConfig:
         require(self.watchdog_s >= 0, "run.watchdog_s", self.watchdog_s, "must be >= 0 (0: off)")
         require(self.lease_s > 0, "run.lease_s", self.lease_s, "must be > 0")
         require(self.liveliness_grace_s >= 0, "run.liveliness_grace_s", self.liveliness_grace_s, "must be >= 0")
+        require(self.cut_off in CUT_OFF_RULES, "run.cut_off", self.cut_off, f"allowed: {', '.join(CUT_OFF_RULES)}")
 
 
 @dataclass(frozen=True)

@@ -67,3 +67,29 @@ def test_the_roles_controller_handles_being_cut_off_itself():
     assert not RobotRuntime(roles, roles.robot_names[0], KEYS)._holds
     e55 = load_scenario(config("e5.5-"))
     assert not any(handles_cut_off(e55, n) for n in e55.robot_names)
+
+
+def test_run_cut_off_drive_lets_a_cut_off_robot_drive_on_and_its_silence_be_forgotten():
+    """``run.cut_off = "drive"``: the old behaviour, chosen per scenario. The robot is still
+    found cut off (the event is on the timeline) but its controller's command goes out, and
+    no safety filter keeps a silent robot as held."""
+    import dataclasses
+
+    from copath.scenario import ConfigError
+
+    scen = load_scenario(config("e5.5-"))
+    scen = dataclasses.replace(scen, run=dataclasses.replace(scen.run, cut_off="drive"))
+    rts = {n: RobotRuntime(scen, n, KEYS) for n in ("r2", "r3")}
+    assert not rts["r3"]._holds and rts["r3"].safety._silent_hold is None
+    poses = {r.name: list(r.pose) for r in scen.robots}
+    dt, moving = scen.run.dt, []
+    for k in range(40):
+        out2 = _step(rts["r2"], poses["r2"], k, dt)
+        out3 = _step(rts["r3"], poses["r3"], k, dt)
+        moving.append(any(abs(c) > 1e-6 for c in out3.command.cmd))
+        if k < 10:
+            for _, env in out2.peers:
+                rts["r3"].receive(env)
+    assert rts["r3"].cut_off and all(moving)  # cut off from 2.1 s, and still driving
+    with pytest.raises((ConfigError, ValueError), match="run.cut_off = 'stop' is not allowed; allowed: hold, drive"):
+        dataclasses.replace(scen.run, cut_off="stop")

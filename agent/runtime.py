@@ -162,7 +162,7 @@ class RobotRuntime:
                                    scenario.sensors.count if scenario.sensors.enabled else 0,
                                    silent_hold_s(scenario) if scenario.run.cut_off == "hold" else None,
                                    frozenset(r for r in scenario.robot_names
-                                                                      if r != name and handles_cut_off(scenario, r)))
+                                             if r != name and handles_cut_off(scenario, r)))
                        if scenario.safety.enabled else None)
         # the filter reads the sender position of every envelope it overhears, through fault
         # streams of its own (another seed), so the controller's messages are the same with or
@@ -181,9 +181,9 @@ class RobotRuntime:
         gone quiet as held only while the hold is younger than ``safety.max_age_s``; with a
         slower network they forget it, and a hold would only cost coordination)."""
         self.cut_off = False
+        """Every robot of :attr:`_team` it has heard is lost here, at least one by silence."""
         self._overheard_at: dict[str, float] = {}
         """When an overheard envelope of each sender was last delivered to the filter."""
-        """Every robot of :attr:`_team` is lost here (at least one was heard before)."""
 
     @property
     def subscriptions(self) -> list[str]:

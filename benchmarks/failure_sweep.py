@@ -52,7 +52,7 @@ CASES: list[tuple[str, tuple[float, ...], float, tuple[str, ...]]] = [
     ("e6.5-", (5.0, 15.0), 60.0, ("r2", "r5")),
     ("e6.6-", (10.0, 20.0), 60.0, ("r2",)),
 ]
-"""The sweep of the closing note of 2026-11-30: 13 multi-robot scenarios, two victims and two
+"""The sweep of the closing note of 2026-11-30: 12 multi-robot scenarios, two victims and two
 times where the run is long enough (chosen: early, and after the formation settled)."""
 
 

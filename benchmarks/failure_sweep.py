@@ -52,8 +52,9 @@ CASES: list[tuple[str, tuple[float, ...], float, tuple[str, ...]]] = [
     ("e6.5-", (5.0, 15.0), 60.0, ("r2", "r5")),
     ("e6.6-", (10.0, 20.0), 60.0, ("r2",)),
 ]
-"""The sweep of the closing note of 2026-11-30: 12 multi-robot scenarios, two victims and two
-times where the run is long enough (chosen: early, and after the formation settled)."""
+"""The sweep of docs/faults.md ("Does the fleet crash into itself?"): 12 multi-robot
+scenarios, up to two victims and two times each (chosen: early, and after the formation
+settled, where the run is long enough)."""
 
 
 def run_case(scen: Scenario, fault: str, victim: str, t_fault: float, duration_s: float) -> dict[str, Any]:

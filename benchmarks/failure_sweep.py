@@ -8,8 +8,9 @@ from the simulator's truth.
 
 Per run: collisions and minimum separation over the whole run (the metrics' rule), and the
 fleet's largest coordination error after settling, or the tasks completed (Chapter 6).
-A kill closes the robot's link at that tick, as SIGKILL does (its token goes, the
-simulator holds it still); a silence is ``network.silence`` from that time to the end.
+A kill is ``run_scenario(kills=...)``: the robot's link closes at that tick, as with
+SIGKILL (its token goes, the simulator holds it still); a silence is ``network.silence``
+from that time to the end.
 """
 
 from __future__ import annotations
@@ -26,15 +27,9 @@ REPO = pathlib.Path(__file__).resolve().parents[1]
 if str(REPO) not in sys.path:
     sys.path.insert(0, str(REPO))
 
-from agent.node import AgentNode  # noqa: E402
-from agent.runtime import RobotRuntime  # noqa: E402
 from copath.scenario import Scenario, Silence  # noqa: E402
-from copath.wire.acl import AccessPolicy  # noqa: E402
-from copath.wire.keys import Keys  # noqa: E402
-from copath.wire.link import MemoryBus  # noqa: E402
 from orchestrator import api  # noqa: E402
-from orchestrator.metrics import compute_metrics, trace_from_records  # noqa: E402
-from sim.node import SimNode  # noqa: E402
+from orchestrator.inprocess import run_scenario  # noqa: E402
 from tests.conftest import config  # noqa: E402
 
 CASES: list[tuple[str, tuple[float, ...], float, tuple[str, ...]]] = [
@@ -63,28 +58,9 @@ def run_case(scen: Scenario, fault: str, victim: str, t_fault: float, duration_s
     if fault == "silence":
         scen = dataclasses.replace(scen, network=dataclasses.replace(
             scen.network, silence=(Silence(victim, t_fault, duration_s + 1.0),)))
-    keys = Keys("sweep")
-    sim = None
-    bus = MemoryBus(clock=lambda: sim.world.t, policy=AccessPolicy.for_scenario(keys, scen))
-    agents = {n: AgentNode(RobotRuntime(scen, n, keys), keys, bus.link(n), "lockstep") for n in scen.robot_names}
-    k_kill = round(t_fault / scen.run.dt) if fault == "kill" else None
-
-    def tick(k: int) -> None:
-        if k == k_kill:
-            agents[victim].link.close()  # its token goes, it answers no more: SIGKILL
-
-    sim = SimNode(scen, keys, bus.link("sim"), duration_s=duration_s, on_tick=tick)
-    for a in agents.values():
-        a.start()
-    try:
-        sim.run()
-    finally:
-        for a in agents.values():
-            a.link.close()
-        sim.link.close()
-    m = compute_metrics(trace_from_records(bus.records, keys), scen, run_id="sweep", clock="lockstep",
-                        wall_time_s=0.0, messages_published=None, messages_recorded=None)
-    f = m["fleet"]
+    res = run_scenario(scen, duration_s=duration_s, run_id="sweep",
+                       kills={victim: t_fault} if fault == "kill" else None)
+    f = res.metrics["fleet"]
     return {"scenario": scen.id, "fault": fault, "robot": victim, "t_s": t_fault,
             "collisions": f["collisions"], "min_separation_m": f["min_separation_m"],
             "coordination_error_max_m": f.get("coordination_error_max_m"),

@@ -21,7 +21,7 @@ from __future__ import annotations
 import time
 import uuid
 from dataclasses import dataclass, field
-from typing import Any, Callable
+from typing import Any, Callable, Mapping
 
 from agent.node import AgentNode
 from agent.runtime import RobotRuntime
@@ -43,14 +43,23 @@ class RunResult:
     trace: Trace
     records: list[tuple[int, str, Any]] = field(repr=False)
     """(log time [ns], key, record) of every message the run published."""
+    ok: bool = True
+    """The simulator's verdict (False: it ended the run, e.g. a lost robot under ``fail``)."""
 
 
 def run_scenario(scenario: Scenario, duration_s: float | None = None, run_id: str | None = None,
-                 on_tick: Callable[[float, int], None] | None = None) -> RunResult:
+                 on_tick: Callable[[float, int], None] | None = None,
+                 kills: Mapping[str, float] | None = None,
+                 restarts: Mapping[str, float] | None = None) -> RunResult:
     """Run ``scenario`` in lockstep inside this process and return metrics and trace.
 
     ``on_tick(t, n)`` is called after each tick with the sim time reached [s] and the
-    number of messages published so far (progress display)."""
+    number of messages published so far (progress display). ``kills`` ({robot: t [s]}):
+    the robot's process goes away at the first tick at or after t, as with SIGKILL (its
+    link closes: its liveliness token disappears and it answers no more observations; the
+    run's ``on_robot_failure`` applies). ``restarts`` ({robot: t}): a new process of that
+    robot (a new controller) starts then and joins from the current world state, as
+    ``restart`` does for a fleet (docs/faults.md)."""
     wall0 = time.perf_counter()
     run_id = run_id or f"inproc-{uuid.uuid4().hex[:8]}"
     keys = Keys(run_id)
@@ -59,16 +68,33 @@ def run_scenario(scenario: Scenario, duration_s: float | None = None, run_id: st
     # secure mode's access policy, whatever run.secure says: a node that steps outside its
     # grants fails here at once, not as a stalled fleet behind a secure router
     bus = MemoryBus(clock=lambda: sim.world.t, policy=AccessPolicy.for_scenario(keys, scenario))
-    tick = None if on_tick is None else (lambda k: on_tick((k + 1) * dt, len(bus.records)))
-    sim = SimNode(scenario, keys, bus.link("sim"), duration_s=duration_s, on_tick=tick)
+    agents = {n: AgentNode(RobotRuntime(scenario, n, keys), keys, bus.link(n), "lockstep") for n in scenario.robot_names}
+    started: list[AgentNode] = []
+    faults = sorted([(round(t / dt), 0, n) for n, t in (kills or {}).items()]
+                    + [(round(t / dt), 1, n) for n, t in (restarts or {}).items()])
+    for _, _, n in faults:
+        scenario.robot(n)  # an unknown robot fails here, naming it
+
+    def tick(k: int) -> None:
+        while faults and faults[0][0] <= k:
+            _, restart, n = faults.pop(0)
+            if restart:
+                started.append(AgentNode(RobotRuntime(scenario, n, keys), keys, bus.link(n), "lockstep"))
+                started[-1].start()
+            else:
+                agents[n].link.close()
+        if on_tick is not None:
+            on_tick((k + 1) * dt, len(bus.records))
+
+    sim = SimNode(scenario, keys, bus.link("sim"), duration_s=duration_s,
+                  on_tick=tick if faults or on_tick is not None else None)
     sim.world.t = 0.0
-    agents = [AgentNode(RobotRuntime(scenario, n, keys), keys, bus.link(n), "lockstep") for n in scenario.robot_names]
-    for a in agents:
+    for a in agents.values():
         a.start()
     try:
-        sim.run()
+        ok = sim.run()
     finally:
-        for a in agents:
+        for a in [*agents.values(), *started]:
             a.link.close()
         sim.link.close()
     records = bus.records
@@ -84,4 +110,4 @@ def run_scenario(scenario: Scenario, duration_s: float | None = None, run_id: st
         messages_published=published,
         messages_recorded=published,
     )
-    return RunResult(metrics, trace, records)
+    return RunResult(metrics, trace, records, bool(ok))

@@ -10,19 +10,16 @@ import numpy as np
 import pytest
 
 from agent.controllers import build_controller
-from agent.node import AgentNode
-from agent.runtime import RobotRuntime
 from copath.control import Observation, PeerMessage, RobotContext
 from copath.scenario import load_scenario
 from copath.wire.keys import Keys
-from copath.wire.link import MemoryBus
 from copath.wire.messages import PeerEnvelope
 from agent.controllers.leader_following import FollowerConfig, follower_reference
 from copath.config import from_table
 from copath.slots import wrap_near
-from orchestrator.metrics import compute_metrics, trace_from_records
+from orchestrator.inprocess import run_scenario
+from orchestrator.metrics import compute_metrics
 from orchestrator.metrics_truth import truth_series
-from sim.node import SimNode
 from tests.conftest import config
 
 T_KILL = 12.0
@@ -42,32 +39,10 @@ def run_killed(scen, duration_s: float = 30.0, t_kill: float = T_KILL, t_back: f
     closes: its token disappears and it answers no more observations, like SIGKILL) and,
     with ``t_back``, a new one starts then (a restart: a new controller at term 0).
     Returns (scenario, keys, records, trace)."""
-    keys = Keys("election")
-    sim = None
-    bus = MemoryBus(clock=lambda: sim.world.t)
-    agents = {n: AgentNode(RobotRuntime(scen, n, keys), keys, bus.link(), "lockstep") for n in scen.robot_names}
-    k_kill = int(round(t_kill / scen.run.dt))
-    k_back = None if t_back is None else int(round(t_back / scen.run.dt))
-    restarted = []
-
-    def tick(k):
-        if k == k_kill:
-            agents["leader"].link.close()
-        if k == k_back:
-            restarted.append(AgentNode(RobotRuntime(scen, "leader", keys), keys, bus.link(), "lockstep"))
-            restarted[-1].start()
-
-    sim = SimNode(scen, keys, bus.link(), duration_s=duration_s, on_tick=tick)
-    for a in agents.values():
-        a.start()
-    try:
-        ok = sim.run()
-    finally:
-        for a in [*agents.values(), *restarted]:
-            a.link.close()
-        sim.link.close()
-    assert ok
-    return scen, keys, bus.records, trace_from_records(bus.records, keys)
+    res = run_scenario(scen, duration_s=duration_s, run_id="election", kills={"leader": t_kill},
+                       restarts={} if t_back is None else {"leader": t_back})
+    assert res.ok
+    return scen, Keys("election"), res.records, res.trace
 
 
 @pytest.fixture(scope="module")

@@ -102,3 +102,27 @@ def test_a_robot_restarted_too_late_to_rejoin_does_not_fail_the_run(tmp_path, pr
     assert m["ok"] and m["robots"]["r3"]["restarts"] in (0, 1)
     assert m["robots"]["r3"]["outage_s"] > 0
     assert (tmp_path / "logs" / "r3.restart1.log").is_file()
+
+
+def test_in_process_kills_and_restarts_follow_the_policy():
+    """``run_scenario(kills=..., restarts=...)``, the in-process form of SIGKILL and of the
+    ``restart`` policy: under ``fail`` a kill ends the run naming the robot; under
+    ``restart`` the new process rejoins and is counted; an unknown robot is refused."""
+    import dataclasses
+
+    from copath.config import ConfigError
+    from copath.scenario import load_scenario
+    from orchestrator.inprocess import run_scenario
+
+    scen = load_scenario(config("e5.5-"))
+    # the liveliness grace is wall time, which an in-process run hardly spends: none here
+    now = dataclasses.replace(scen, run=dataclasses.replace(scen.run, liveliness_grace_s=0.0))
+    failed = run_scenario(now, duration_s=8.0, kills={"r3": 3.0})
+    assert not failed.ok and failed.metrics["sim_time_s"] < 3.5
+    assert failed.trace.end.reason == "robot r3 lost (its process stopped)"
+    back = run_scenario(dataclasses.replace(scen, run=dataclasses.replace(scen.run, on_robot_failure="restart")),
+                        duration_s=8.0, kills={"r3": 3.0}, restarts={"r3": 4.0})
+    assert back.ok and back.metrics["robots"]["r3"]["restarts"] == 1
+    assert 0.9 < back.metrics["robots"]["r3"]["outage_s"] < 1.3
+    with pytest.raises(ConfigError, match="robot = 'r9' is not in the scenario"):
+        run_scenario(scen, duration_s=1.0, kills={"r9": 0.5})

@@ -16,15 +16,10 @@ import numpy as np
 from agent.controllers.roles.assignment import RoleBook
 from agent.controllers.roles.controller import RolesController
 from agent.controllers.roles.phases import ASSIGNED, EN_ROUTE, Assignment, Peer, PeerTable
-from agent.node import AgentNode
-from agent.runtime import RobotRuntime
 from copath.control import Observation, PeerMessage, RobotContext
 from copath.models import UnicycleModel
-from copath.wire.keys import Keys
-from copath.wire.link import MemoryBus
 from orchestrator import api
-from orchestrator.metrics import compute_metrics, trace_from_records
-from sim.node import SimNode
+from orchestrator.inprocess import run_scenario
 
 SCENARIO = "e6.3-roles-circle-surplus-robots"
 
@@ -113,29 +108,10 @@ def test_a_robot_cut_off_next_to_its_position_keeps_it_and_drives_on():
 def _killed(name: str, t_kill: float) -> tuple[dict, dict[str, np.ndarray]]:
     """E6.3 in one process, ``continue``; ``name``'s process goes away at ``t_kill`` (its link
     closes: its token disappears, the simulator holds it still). Metrics and true poses."""
-    scen = api.load(SCENARIO, {"run.on_robot_failure": "continue"})
-    keys, sim = Keys("killed"), None
-    bus = MemoryBus(clock=lambda: sim.world.t)
-    agents = {n: AgentNode(RobotRuntime(scen, n, keys), keys, bus.link(), "lockstep") for n in scen.robot_names}
-    k_kill = int(round(t_kill / scen.run.dt))
-
-    def tick(k):
-        if k == k_kill:
-            agents[name].link.close()
-
-    sim = SimNode(scen, keys, bus.link(), on_tick=tick)
-    for a in agents.values():
-        a.start()
-    try:
-        assert sim.run()
-    finally:
-        for a in agents.values():
-            a.link.close()
-        sim.link.close()
-    trace = trace_from_records(bus.records, keys)
-    metrics = compute_metrics(trace, scen, run_id="killed", clock="lockstep", wall_time_s=0.0,
-                              messages_published=None, messages_recorded=None)
-    return metrics, {n: np.column_stack([rt.t, rt.pose]) for n, rt in trace.robots.items()}
+    res = run_scenario(api.load(SCENARIO, {"run.on_robot_failure": "continue"}), run_id="killed",
+                       kills={name: t_kill})
+    assert res.ok
+    return res.metrics, {n: np.column_stack([rt.t, rt.pose]) for n, rt in res.trace.robots.items()}
 
 
 def test_a_dead_robot_is_passed_like_a_silent_one():

@@ -129,6 +129,14 @@ def tt_error_dynamics(xe, body, u_d, omega_d):
     )
 
 
+def tt_terminal_law(xe, u_d, omega_d, gains, cos=ca.cos, sin=ca.sin) -> tuple:
+    """Body velocities (u, v, omega) the terminal law asks at tracking errors ``xe``
+    (docs/derivations.md, D15): u_d cos(e_theta) + a e_x, u_d sin(e_theta) + b e_y,
+    omega_d + g e_theta. Symbolic with CasADi's ``cos``/``sin``, numeric with ``math``'s."""
+    a, b, g = gains
+    return (u_d * cos(xe[2]) + a * xe[0], u_d * sin(xe[2]) + b * xe[1], omega_d + g * xe[2])
+
+
 def tt_virtual_inputs(xe, body, u_d, omega_d):
     """Virtual inputs of (4.12)-(4.13), rows corrected per docs/ambiguities.md, A3."""
     return ca.vertcat(u_d * ca.cos(xe[2]) - body[0], u_d * ca.sin(xe[2]) - body[1], omega_d - body[2])
@@ -451,10 +459,7 @@ class OmniTrackingNMPC:
 
         def terminal_region(x, u, p):
             # terminal-law commands (docs/derivations.md, D15) must respect the wheel limit
-            xe = errors(x, p)
-            body = ca.vertcat(p[3] * ca.cos(xe[2]) + a * xe[0], p[3] * ca.sin(xe[2]) + b * xe[1],
-                              p[4] + g * xe[2])
-            return ca.mtimes(M, body)
+            return ca.mtimes(M, ca.vertcat(*tt_terminal_law(errors(x, p), p[3], p[4], (a, b, g))))
 
         ocp = OCP(
             nx=3, nu=3, N=self.N, dt=self.dt, dynamics=dynamics, stage_residual=stage,
@@ -475,10 +480,8 @@ class OmniTrackingNMPC:
         that is within qdot_max of (4.11) (or the bound is not contractive)."""
         if not self.contractive:
             return None
-        xe = tt_errors(pose, ref_row)  # the terminal law of D15, as ``terminal_region`` above
-        a, b, g = self.gains
-        u_d, omega_d = float(ref_row[3]), float(ref_row[4])
-        body = (u_d * math.cos(xe[2]) + a * xe[0], u_d * math.sin(xe[2]) + b * xe[1], omega_d + g * xe[2])
+        body = tt_terminal_law(tt_errors(pose, ref_row), float(ref_row[3]), float(ref_row[4]), self.gains,
+                               math.cos, math.sin)  # numpy, as the OCP's terminal_region (36 -> 9 us)
         need = float(np.max(np.abs(self.M @ body)))
         return need if need > self.model.qdot_max else None
 

@@ -62,12 +62,14 @@ def silent_hold_s(scenario: Scenario) -> float:
 def handles_cut_off(scenario: Scenario, name: str) -> bool:
     """Whether robot ``name``'s controller handles being cut off itself: its parameter
     dataclass says so (``handles_cut_off = True``, a class constant; the roles controller,
-    docs/ambiguities.md A38). Read from the scenario, so every robot knows it of every other."""
+    docs/ambiguities.md A38). Read from the scenario, so every robot knows it of every other;
+    the class is enough (parsing every robot's parameters cost each runtime 0.46 ms per role
+    robot, N^2 over a fleet)."""
     try:
-        cfg = resolve_controller(scenario.robot(name).controller).parse(RobotContext.for_robot(scenario, name))
+        factory = resolve_controller(scenario.robot(name).controller)
     except ConfigError:  # reported where that robot's controller is built
         return False
-    return bool(getattr(cfg, "handles_cut_off", False))
+    return bool(getattr(factory.config, "handles_cut_off", False))
 
 
 def sensor_angles(count: int) -> np.ndarray:

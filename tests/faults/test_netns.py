@@ -51,18 +51,25 @@ def run_across_hosts(tmp_path, procs, hosts, run_id: str, duration_s: float = 40
 def assert_every_robot_and_no_loss(tmp_path, run_id: str, ticks: int) -> dict:
     m = json.loads((tmp_path / "metrics.json").read_text())
     assert m["ok"] and m["fleet"]["coordination_error_max_m"] < 0.02
-    # lockstep over TCP: every message the run's processes published reached the recorder
-    assert m["fleet"]["messages_published"] == m["fleet"]["messages_recorded"], m["fleet"]
     log = read_log(tmp_path / "run.mcap")
     assert log.counts[f"copath/{run_id}/sim/truth"] == ticks
-    # a resent segment can stall the link for seconds (TCP backoff): an agent that heard no
-    # observation for run.watchdog_s meanwhile publishes one zero command more, and says so
+    # lockstep over TCP: every message the run's processes published reached the recorder,
+    # unless the lossy link was reset: a resent segment can stall it past the lease, r2's
+    # session is reset and reconnects (it logs the simulator's token going and coming back
+    # within the grace), and what was in flight on it is lost, at most a tick of r2's
+    # records per reset (docs/faults.md, "Across hosts"). Seen in about 1 run in 5.
+    resets = (tmp_path / "logs" / "r2.log").read_text().count("the simulator's liveliness token is back")
+    lost = m["fleet"]["messages_published"] - m["fleet"]["messages_recorded"]
+    assert lost == 0 if resets == 0 else 0 <= lost <= 6 * resets, (resets, m["fleet"])
+    # a stall of run.watchdog_s (TCP backoff) makes an agent publish one zero command more
     watchdog = [r.source for _, _, r in log.records if getattr(r, "TYPE", "") == "event" and r.what == "watchdog"]
     for n in ("r1", "r2", "r3"):  # every robot is in the record, r2 through both routers
         assert log.counts[f"copath/{run_id}/robot/{n}/obs"] == ticks
-        assert log.counts[f"copath/{run_id}/robot/{n}/cmd"] == ticks + watchdog.count(n)
-        assert log.counts[f"copath/{run_id}/peer/{n}/all"] >= ticks
-        assert m["robots"][n]["missed_ticks"] == 0
+        gone = resets if n == "r2" else 0
+        cmds = log.counts[f"copath/{run_id}/robot/{n}/cmd"]
+        assert ticks + watchdog.count(n) - 2 * gone <= cmds <= ticks + watchdog.count(n)
+        assert log.counts[f"copath/{run_id}/peer/{n}/all"] >= ticks - gone
+        assert m["robots"][n]["missed_ticks"] <= gone  # its command of that tick was in flight
     return m
 
 

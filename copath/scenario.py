@@ -26,6 +26,9 @@ The TOML layout (every table optional unless said)::
                 (copath.metrics_config; docs/metrics.md)
     [safety]    enabled, gamma, margin_m, speed_max_mps, overhear, ... (copath.safety)
     [targets]   metric key = threshold, e.g. coordination_error_max_m = 0.1 (copath.targets)
+    [world]     backend ("sim" | "ros2"), start_timeout_s, pose_type, cmd_rate_hz,
+                [world.robots.NAME] pose_topic, pose_type, cmd_topic, frame, origin
+                (copath.ros2.config; docs/ros2.md)
 
 Controller parameters whose key ends in ``_file`` (a string) or ``_files`` (a list) are
 data files relative to the scenario file; the loader replaces them by their content
@@ -53,6 +56,7 @@ from .estimation import SensingConfig, parse_sensing
 from .metrics_config import parse_metrics
 from .models import OmniModel, UnicycleModel, make_model
 from .paths import Path, make_path
+from .ros2.config import WorldConfig, parse_world
 from .safety import SafetyConfig
 from .targets import Target, parse_targets
 
@@ -268,6 +272,9 @@ class Scenario:
     """Goals a run is graded against (``[targets]``, :func:`copath.targets.grade`)."""
     safety: SafetyConfig = SafetyConfig()
     """The per-robot safety filter (``[safety]``, :mod:`copath.safety`); off by default."""
+    world: WorldConfig = WorldConfig()
+    """Which world the robots live in (``[world]``, :mod:`copath.ros2.config`): copath's
+    simulator (default) or ROS 2 robots (docs/ros2.md)."""
 
     @property
     def robot_names(self) -> tuple[str, ...]:
@@ -299,7 +306,7 @@ class Scenario:
 _ROBOT_KEYS = frozenset({"name", "model", "pose", "path", "neighbours", "controller"})
 _TOP_KEYS = {"_source", "id", "experiment", "title", "run", "network", "noise", "sensors", "paths", "controller", "robots",
              "obstacles", "metrics", "targets", "safety", "notes",
-             "sensing"}
+             "sensing", "world"}
 
 
 def _load_data_file(base_dir: pathlib.Path | None, name: str, key: str) -> Any:
@@ -544,6 +551,15 @@ def parse_scenario(raw: Mapping[str, Any], base_dir: pathlib.Path | None = None,
                    "safety.gamma", safety.gamma,
                    f"must be <= 1/run.dt = {1.0 / run.dt:g} 1/s so a barrier cannot be overshot in one period")
     _cross_field(run, robots, errs)
+    world = errs.take(lambda: parse_world(raw.get("world"), tuple(order)), WorldConfig())
+    if world.ros2:  # ROS 2 robots run on the wall clock and report their own poses (docs/ros2.md)
+        errs.check(run is None or run.clock == "realtime", "run.clock", run.clock if run else None,
+                   "world.backend = 'ros2' drives real robots on the wall clock: set run.clock = 'realtime'")
+        errs.check(not sensors.enabled, "sensors.enabled", sensors.enabled,
+                   "world.backend = 'ros2' has no simulated range sensors")
+        errs.check(all(sensing.profile_for(r.name, r.model.kind).ideal for r in robots), "sensing",
+                   raw.get("sensing"), "world.backend = 'ros2' feeds the robots' reported poses; sensor profiles "
+                   "are simulated only")
     scenario = Scenario(
         id=sid,
         experiment=experiment,
@@ -561,6 +577,7 @@ def parse_scenario(raw: Mapping[str, Any], base_dir: pathlib.Path | None = None,
         targets=targets,
         sensing=sensing,
         safety=safety,
+        world=world,
     )
     if checks is not None:
         errs.items.extend(checks(scenario))

@@ -45,6 +45,10 @@ def use_import_dirs(dirs: list[str]) -> None:
 def controller_errors(scenario: Scenario) -> list[str]:
     """Every controller problem of ``scenario`` (empty when all robots are fine)."""
     errors: list[str] = []
+    if scenario.world.ros2:  # a ROS 2 world without ROS 2 installed: one line saying what to install
+        from copath.ros2 import missing
+
+        errors.extend([m] if (m := missing()) else [])
     resolved: dict[str, Any] = {}
     for spec in scenario.robots:
         if spec.controller not in resolved:

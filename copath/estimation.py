@@ -150,8 +150,13 @@ class _SensingTable:
     """The flat keys of ``[sensing]`` (validated by :func:`copath.config.from_table`)."""
 
     profile: str = "ideal"
+    """Sensor profile of every robot: ``ideal`` (the true pose every tick), ``realistic``
+    or a name under ``[sensing.profiles]`` (docs/sensing.md)."""
     estimator: bool = True
+    """Run the pose EKF in every robot with a non-ideal profile; false: the controller sees
+    the latest raw reading."""
     solve_time_s: float = 0.0
+    """Solve-time compensation: the controller sees the estimate predicted this far ahead [s] (0: off)."""
 
 
 @dataclass(frozen=True)

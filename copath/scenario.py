@@ -158,9 +158,14 @@ class RunConfig:
 
 @dataclass(frozen=True)
 class Partition:
+    """Named links cut over [start_s, end_s) (both directions of each link)."""
+
     links: tuple[tuple[str, str], ...]
-    start_s: float
-    end_s: float
+    """Pairs of robots ``[["r1", "r2"], ...]``; each must be an edge of the communication graph."""
+    start_s: float = 0.0
+    """Start of the cut [s]."""
+    end_s: float = math.inf
+    """End of the cut [s] (default: the end of the run)."""
 
 
 @dataclass(frozen=True)
@@ -169,8 +174,11 @@ class Silence:
     robot-to-robot messages (its link to the simulator stays up)."""
 
     robot: str
-    start_s: float
-    end_s: float
+    """The silent robot's name."""
+    start_s: float = 0.0
+    """Start of the silence [s]."""
+    end_s: float = math.inf
+    """End of the silence [s] (default: the end of the run)."""
 
 
 @dataclass(frozen=True)
@@ -190,6 +198,7 @@ class NetworkConfig:
     range_m: float = 0.0
     """Communication range r [m] (Def. 10); 0 means a fixed graph from robots.neighbours."""
     partitions: tuple[Partition, ...] = ()
+    """Scheduled partitions ``[{links, start_s, end_s}]`` of named links (docs/faults.md)."""
     silence: tuple[Silence, ...] = ()
     """Radio silences ``[{robot, start_s, end_s}]`` (docs/faults.md)."""
 

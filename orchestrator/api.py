@@ -328,8 +328,7 @@ def run(scenario: Scenario | str | pathlib.Path, overrides: Mapping[str, Any] | 
 
         if sc.run.clock != "lockstep":
             raise ConfigError(f"run.clock = {sc.run.clock!r} is not allowed in-process; only lockstep runs in-process")
-        res = run_scenario(sc, run_id=rid, on_tick=on_tick)
-        res.metrics["ok"], res.metrics["failure"] = True, None
+        res = run_scenario(sc, run_id=rid, on_tick=on_tick)  # its metrics carry ok and failure
         out = None
         if out_dir is not None:
             from .mcaplog import write_records
@@ -339,7 +338,7 @@ def run(scenario: Scenario | str | pathlib.Path, overrides: Mapping[str, Any] | 
             (out / "metrics.json").write_text(json.dumps(res.metrics, indent=2))
             if log:
                 write_records(out / "run.mcap", res.records, sc, rid)
-        return Run(sc, res.metrics, res.records, out)
+        return Run(sc, res.metrics, res.records, out, res.ok, res.metrics["failure"] or "completed")
     from .fleet import RunOptions, run_fleet
 
     out = pathlib.Path(out_dir) if out_dir is not None else pathlib.Path("runs") / rid

@@ -29,7 +29,7 @@ from copath.scenario import Scenario
 from copath.wire.acl import AccessPolicy
 from copath.wire.keys import Keys
 from copath.wire.link import MemoryBus
-from copath.wire.messages import Stats
+from copath.wire.messages import End, Stats
 from sim.node import SimNode
 
 from .metrics import Trace, compute_metrics, trace_from_records
@@ -110,4 +110,8 @@ def run_scenario(scenario: Scenario, duration_s: float | None = None, run_id: st
         messages_published=published,
         messages_recorded=published,
     )
+    # ok and failure as a fleet run's metrics.json has them (orchestrator.metrics.log_metrics)
+    end = next((r for _, _, r in reversed(records) if isinstance(r, End)), None)
+    metrics["ok"] = bool(ok)
+    metrics["failure"] = None if ok else (end.reason if end is not None else "the simulator ended the run")
     return RunResult(metrics, trace, records, bool(ok))

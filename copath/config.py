@@ -108,7 +108,12 @@ def from_table(cls: type[T], table: Mapping[str, Any] | None, where: str) -> T:
     kwargs = {k: _coerce(v, hints.get(k, Any), f"{where}.{k}") for k, v in table.items()}
     try:
         return cls(**kwargs)
-    except ConfigError:
+    except ConfigErrors:
+        raise
+    except ConfigError as exc:  # a __post_init__ that names its own key bare ("v0 = ..."): say where
+        msg = str(exc)
+        if msg.split(" = ", 1)[0] in fields:
+            raise ConfigError(f"{where}.{msg}") from None
         raise
     except (TypeError, ValueError) as exc:
         raise ConfigError(f"{where}: {exc}") from exc

@@ -70,6 +70,8 @@ __all__ = [
     "ObstacleSpec",
     "parse_scenario",
     "load_scenario",
+    "key_lines",
+    "locate_errors",
     "ConfigError",
     "ConfigErrors",
 ]
@@ -415,7 +417,8 @@ def _obstacle(o: Any, where: str) -> ObstacleSpec:
     return ObstacleSpec(vs, vel)
 
 
-def _robot(r: Any, i: int, names: list, paths: Mapping[str, Path], defaults: dict, errs: _Errors) -> RobotSpec | None:
+def _robot(r: Any, i: int, names: list, paths: Mapping[str, Path], defaults: dict, errs: _Errors,
+           broken: frozenset[str] = frozenset()) -> RobotSpec | None:
     where = f"robots[{i}]"
     if not errs.check(isinstance(r, dict), where, r, "expected a table {name, model, pose, path, ...}"):
         return None
@@ -430,7 +433,8 @@ def _robot(r: Any, i: int, names: list, paths: Mapping[str, Path], defaults: dic
     model = errs.take(lambda: _wrap(lambda: make_model(r.get("model", "unicycle")), f"robots.{name}.model"))
     pose = errs.take(lambda: as_float_tuple(r.get("pose", [0.0, 0.0, 0.0]), f"robots.{name}.pose", 3))
     path = r.get("path")
-    errs.check(path is None or path in paths, f"robots.{name}.path", path,
+    # a path table that did not build has its own error already: the robots naming it say nothing more
+    errs.check(path is None or path in paths or path in broken, f"robots.{name}.path", path,
                f"must name a table under [paths]: {', '.join(sorted(paths)) or '(none defined)'}")
     nbrs = r.get("neighbours", [])
     ok_nbrs = errs.check(isinstance(nbrs, list) and all(n in names and n != name for n in nbrs),
@@ -521,7 +525,8 @@ def parse_scenario(raw: Mapping[str, Any], base_dir: pathlib.Path | None = None,
     if errs.check(isinstance(robots_raw, list) and robots_raw, "robots", robots_raw,
                   "need at least one [[robots]] entry"):
         names = [r.get("name") if isinstance(r, dict) else None for r in robots_raw]
-        robots = [s for s in (_robot(r, i, names, paths, defaults, errs) for i, r in enumerate(robots_raw))
+        broken = frozenset(set(raw.get("paths") or {}) - set(paths))
+        robots = [s for s in (_robot(r, i, names, paths, defaults, errs, broken) for i, r in enumerate(robots_raw))
                   if s is not None]
     # the fixed graph must be undirected: neighbour lists are symmetrised
     order = [r.name for r in robots]
@@ -595,6 +600,84 @@ def parse_scenario(raw: Mapping[str, Any], base_dir: pathlib.Path | None = None,
     return scenario
 
 
+_HEADER_RE = re.compile(r"^\s*(\[\[?)\s*([^\]]+?)\s*\]\]?")
+_KEY_RE = re.compile(r"^\s*([A-Za-z0-9_\-\".]+)\s*=")
+_INLINE_KEY_RE = re.compile(r"[{,]\s*([A-Za-z0-9_\-]+)\s*=")
+_ERROR_KEY_RE = re.compile(r"^([A-Za-z_][\w\-]*(?:\[\d+\])?(?:\.[\w\-]+(?:\[\d+\])?)*)(?: = |: )")
+
+
+def key_lines(text: str) -> dict[str, int]:
+    """Line (1-based) of every key of a TOML scenario, by its dotted location as the error
+    messages name it: ``run.dt``, ``controller.k1``, ``robots[0].pose`` and ``robots.r1.pose``
+    (by the entry's name), ``paths.main.a``, keys of inline tables too.
+
+    TOML readers give no line numbers for keys, so the text is searched: a line-based
+    reading of headers, ``key = value`` lines and one level of inline tables, which covers
+    how scenarios are written; a key it cannot place has no line."""
+    out: dict[str, int] = {}
+    table: list[str] = []
+    counts: dict[str, int] = {}
+    names: dict[str, str] = {}  # "robots[0]" -> "robots.r1"
+
+    def put(key: str, line: int) -> None:
+        out.setdefault(key, line)
+
+    for n, line in enumerate(text.splitlines(), start=1):
+        code = line.split("#", 1)[0] if '"' not in line.split("#", 1)[0] else line
+        m = _HEADER_RE.match(code)
+        if m:
+            parts = [s.strip().strip('"') for s in m.group(2).split(".")]
+            if m.group(1) == "[[":  # an array of tables: the next entry
+                arr = ".".join(parts)
+                i = counts[arr] = counts.get(arr, -1) + 1
+                table = parts[:-1] + [f"{parts[-1]}[{i}]"]
+            else:
+                # [robots.controller] after [[robots]] belongs to the last robots entry
+                head = parts[0]
+                table = ([f"{head}[{counts[head]}]"] + parts[1:]) if head in counts else parts
+            put(".".join(table), n)
+            continue
+        m = _KEY_RE.match(code)
+        if not m:
+            continue
+        key = ".".join([*table, *(s.strip().strip('"') for s in m.group(1).split("."))])
+        put(key, n)
+        rest = code[m.end():]
+        if rest.lstrip().startswith("{"):
+            for k in _INLINE_KEY_RE.findall(rest):
+                put(f"{key}.{k}", n)
+        if table and table[-1].startswith("robots[") and m.group(1) == "name":
+            v = rest.strip().strip('"').strip("'")
+            names[table[-1]] = f"robots.{v}"
+    for key, line in list(out.items()):
+        for idx, named in names.items():
+            if key == idx or key.startswith(idx + "."):
+                out.setdefault(named + key[len(idx):], line)
+    return out
+
+
+def locate_errors(errors: list[str], text: str, skip: tuple[str, ...] = ()) -> list[str]:
+    """``errors`` with ``line N: `` in front of each whose key (or the nearest table above it)
+    is found in ``text``; keys under a prefix in ``skip`` (values set by ``--set``) are left
+    without a line, since the file's line is not where their value came from."""
+    lines = key_lines(text)
+    out = []
+    for e in errors:
+        m = _ERROR_KEY_RE.match(e)
+        key = m.group(1) if m else None
+        if key is None or any(key == s or key.startswith(s + ".") or key.startswith(s + "[") for s in skip):
+            out.append(e)
+            continue
+        probe, line = key, None
+        while probe:
+            line = lines.get(probe)
+            if line is not None:
+                break
+            probe = re.sub(r"(\.[^.\[]+|\[\d+\])$", "", probe) if re.search(r"(\.[^.\[]+|\[\d+\])$", probe) else ""
+        out.append(f"line {line}: {e}" if line is not None else e)
+    return out
+
+
 def load_scenario(path: str | pathlib.Path, checks: Callable[["Scenario"], list[str]] | None = None) -> Scenario:
     """Read and validate a scenario file (entry points only); ``checks`` as in :func:`parse_scenario`."""
     path = pathlib.Path(path)
@@ -606,8 +689,12 @@ def load_scenario(path: str | pathlib.Path, checks: Callable[["Scenario"], list[
         except json.JSONDecodeError as exc:
             raise ConfigError(f"{path.name}: not valid JSON: {exc}") from exc
         return parse_scenario(raw, base_dir=path.parent, source=str(raw.get("_source", path.name)), checks=checks)
+    text = path.read_text()
     try:
-        raw = tomllib.loads(path.read_text())
+        raw = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{path.name}: not valid TOML: {exc}") from exc
-    return parse_scenario(raw, base_dir=path.parent, source=path.name, checks=checks)
+    try:
+        return parse_scenario(raw, base_dir=path.parent, source=path.name, checks=checks)
+    except ConfigErrors as exc:
+        raise ConfigErrors(locate_errors(exc.errors, text)) from None

@@ -29,8 +29,8 @@ from typing import Any, Callable, Iterable, Mapping
 
 import numpy as np
 
-from copath.config import ConfigError
-from copath.scenario import Scenario, parse_scenario
+from copath.config import ConfigError, ConfigErrors
+from copath.scenario import Scenario, locate_errors, parse_scenario
 from copath.targets import TargetResult, figure, grade
 
 __all__ = [
@@ -223,16 +223,22 @@ def load(name: str | pathlib.Path | Scenario, overrides: Mapping[str, Any] | Ite
     path = find_scenario(name)
     if not ov:
         return validate_file(path)
+    text = path.read_text()
     if path.suffix == ".json":
-        raw = json.loads(path.read_text())
+        raw = json.loads(text)
         source = str(raw.get("_source", path.name))
     else:
         try:
-            raw = tomllib.loads(path.read_text())
+            raw = tomllib.loads(text)
         except tomllib.TOMLDecodeError as exc:
             raise ConfigError(f"{path.name}: not valid TOML: {exc}") from exc
         source = path.name
-    return validate_table(apply_overrides(raw, ov), base_dir=path.parent, source=source)
+    try:
+        return validate_table(apply_overrides(raw, ov), base_dir=path.parent, source=source)
+    except ConfigErrors as exc:  # the file's line of each key, except the keys --set gave
+        if path.suffix == ".json":
+            raise
+        raise ConfigErrors(locate_errors(exc.errors, text, skip=tuple(ov))) from None
 
 
 # --- results ---

@@ -14,11 +14,14 @@ Subcommands (``copath --version``; ``--log-level LEVEL`` before or after the sub
     copath replay RUN.mcap [--speed X] [--run-id ID] [--connect ENDPOINT] [--live [PORT]]
     copath plot RUN.mcap [--out DIR] [--animate]
     copath scenarios [--json]
+    copath validate CONFIG... [--set KEY=VALUE]...
+    copath controllers [NAME...]
     copath bench solve|dmpc|fleet|scale|latency|secure ... [--json]
 
 CONFIG is a scenario file, or a bundled scenario by its file stem or its experiment id
 (``copath run e5.5``). Exit codes: 0 done, 1 the run failed, 2 bad input, 3 a target of
-the scenario's ``[targets]`` was missed (``--check``).
+the scenario's ``[targets]`` was missed (``--check``). A reader that goes away
+(``copath info RUN.mcap | head``) ends the output quietly, with exit code 1.
 """
 
 from __future__ import annotations
@@ -26,6 +29,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import os
 import pathlib
 import sys
 from typing import Sequence
@@ -103,11 +107,16 @@ def _print_errors(cmd: str, config: str, exc: Exception) -> None:
 
 
 def _cmd_validate(args: argparse.Namespace) -> int:
-    """``copath validate CONFIG...``: exit 0 when every file is valid, 2 otherwise."""
+    """``copath validate CONFIG... [--set KEY=VALUE]...``: exit 0 when every file is valid, 2 otherwise."""
     bad = 0
+    try:
+        overrides = _overrides(args)
+    except (ConfigError, ValueError) as exc:
+        _print_errors("copath validate", "--set", exc)
+        return EXIT_INPUT
     for config in args.configs:
-        try:
-            s = validate_file(config)
+        try:  # --set: changed exactly as copath run --set changes it, then validated alike
+            s = api.load(config, overrides) if overrides else validate_file(config)
         except (ConfigError, ValueError) as exc:
             _print_errors("copath validate", config, exc)
             bad += 1
@@ -118,10 +127,21 @@ def _cmd_validate(args: argparse.Namespace) -> int:
 
 
 def _cmd_controllers(args: argparse.Namespace) -> int:
-    """``copath controllers``: every controller type a scenario may name, with its parameters."""
+    """``copath controllers [NAME...]``: every controller type a scenario may name, with each
+    parameter's type, default and meaning (from its parameter dataclass; docs/controller-parameters.md)."""
+    import textwrap
+
     from agent.controllers import registered_names, resolve_controller
 
-    for name in registered_names():
+    from .reference import fields_of
+
+    names = registered_names()
+    unknown = [n for n in args.names if n not in names]
+    if unknown:
+        print(f"copath controllers: {', '.join(unknown)} is not a registered controller; registered: "
+              f"{', '.join(names)}", file=sys.stderr)
+        return EXIT_INPUT
+    for name in args.names or names:
         try:
             f = resolve_controller(name)
         except ConfigError as exc:
@@ -130,9 +150,17 @@ def _cmd_controllers(args: argparse.Namespace) -> int:
         needs = [f"models: {', '.join(f.models)}" if f.models else "any model"]
         if f.needs_path:
             needs.append("needs a path")
-        params = "" if f.config is None else f"  config: {f.config.__module__}.{f.config.__qualname__}"
+        params = "" if f.config is None else f"  ({f.config.__module__}.{f.config.__qualname__})"
         print(f"{name:<22} {'; '.join(needs)}{params}")
-    print("or an import path 'package.module:builder' (see docs/controllers.md)")
+        if f.config is None:
+            print("    parameters: not declared (passed through unchecked)")
+            continue
+        for fi in fields_of(f.config):
+            head = f"{fi.name} ({fi.type}, default {fi.default})"
+            print(textwrap.fill(f"{head}: {fi.doc}" if fi.doc else head, width=100, initial_indent="    ",
+                                subsequent_indent="        "))
+    print("or an import path 'package.module:builder' (see docs/controllers.md; every parameter: "
+          "docs/controller-parameters.md)")
     return 0
 
 
@@ -275,7 +303,7 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
     text = sweep.format_summary(rows)
     (out / "summary.txt").write_text(text + "\n")
     print(text)
-    files = [] if args.no_plots else sweep.plot_sweep(rows, out)
+    files = [] if args.no_plots else sweep.plot_sweep(rows, out, {t.key: t.threshold for t in base.targets})
     print(f"table: {out / 'sweep.csv'}" + (f"\nplots: {len(files)} in {out}" if files else ""))
     failed = sum(not r.ok for r in rows)
     if failed:
@@ -358,6 +386,7 @@ def _run_facts(log: pathlib.Path, info: dict) -> dict:
         metrics = {}
     return {
         "sim_time_s": metrics.get("sim_time_s"),
+        "wall_time_s": metrics.get("wall_time_s"),
         "seed": (scen.get("run") or {}).get("seed", 0),
         "faults": {**{f"network.{k}": v for k, v in faults.items()}, **noise},
         "headline": api.headline(metrics) if metrics else {},
@@ -378,6 +407,9 @@ def _cmd_info(args: argparse.Namespace) -> int:
     else:
         print(format_info(info))
         print(f"Sim time:     {_fmt(facts['sim_time_s'], 2)} s")
+        if facts["wall_time_s"] is not None:  # a longer span than Duration: say why
+            print(f"Run time:     {_fmt(facts['wall_time_s'], 1)} s (wall clock, metrics.json wall_time_s: the "
+                  "whole run, process start-up, solver compilation and shut-down included)")
         print(f"Seed:         {facts['seed']}")
         faults = facts["faults"]
         print("Faults:       " + (", ".join(f"{k}={json.dumps(v)}" for k, v in faults.items()) or "none"))
@@ -595,13 +627,34 @@ def build_parser() -> argparse.ArgumentParser:
     v = sub.add_parser("validate", help="check scenario files (controller parameters included) and print "
                        "every problem; starts nothing")
     v.add_argument("configs", nargs="+", metavar="CONFIG")
-    sub.add_parser("controllers", help="list the controller types (built-in and installed)")
+    v.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                   help="change a value first, as copath run --set does (TOML literal); repeatable")
+    ct = sub.add_parser("controllers", help="list the controller types (built-in and installed) and their parameters")
+    ct.add_argument("names", nargs="*", metavar="NAME", help="only these controller types")
     b = sub.add_parser("bench", help="benchmarks that print figures", add_help=False)
     b.add_argument("what", choices=("solve", "dmpc", "fleet", "scale", "latency", "secure"))
     return p
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    """The ``copath`` command; a reader that goes away (``copath info RUN.mcap | head``)
+    ends the output quietly, without a BrokenPipeError traceback."""
+    try:
+        rc = _main(argv)
+        sys.stdout.flush()  # inside the try: a closed pipe fails here, not at interpreter exit
+        return rc
+    except BrokenPipeError:
+        # the Python documentation's recipe (signal module, "Note on SIGPIPE"): point stdout
+        # at devnull so the flush at exit does not fail again
+        try:
+            devnull = os.open(os.devnull, os.O_WRONLY)
+            os.dup2(devnull, sys.stdout.fileno())
+        except (OSError, ValueError):  # stdout is not a file (a test's capture)
+            pass
+        return EXIT_FAILED
+
+
+def _main(argv: Sequence[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     if argv and argv[0] == "agent":
         from agent.node import main as agent_main

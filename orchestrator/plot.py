@@ -396,6 +396,22 @@ def fig_solve_times(view: RunView):
     return fig
 
 
+def faults_caption(replayed: int, accounted: int | None) -> str:
+    """What the two drop counts of the faults figure are. ``replayed``: the run's fault model
+    applied again to every robot-to-robot message in the log (the bars); ``accounted``: what
+    the receivers counted themselves (their closing accounts). The receivers decide a message
+    when it arrives, so one still in flight when the run ended, or refused before the fault
+    layer (docs/faults.md), is in the first figure only."""
+    if accounted is None:
+        return f"{replayed} (the run's fault model replayed on the logged messages; no closing accounts)"
+    if accounted == replayed:
+        return f"{replayed} (replayed from the log = the receivers' own count)"
+    return (f"{replayed} replayed from the log, {accounted} counted by the receivers "
+            f"(the {abs(replayed - accounted)} more were in flight at the end or refused first)"
+            if replayed > accounted else
+            f"{replayed} replayed from the log, {accounted} counted by the receivers")
+
+
 def fig_faults(view: RunView):
     ds = drops(view)
     fig, ax = plt.subplots(figsize=(8, 3.5))
@@ -408,11 +424,9 @@ def fig_faults(view: RunView):
         ax.hist([ds.t[~ds.partitioned], ds.t[ds.partitioned]], bins=bins, stacked=True, color=["C0", "C3"],
                 label=["lost (loss, burst)", "cut by a partition"])
     total = 0 if ds is None else len(ds.t)
-    check = "" if ds is None or ds.accounted is None else (
-        " = closing accounts" if ds.accounted == total else f" (closing accounts: {ds.accounted})")
     net = view.scenario.network
-    ax.set_title(f"messages dropped by faults: {total}{check}; loss {net.loss:g}, burst p_gb {net.burst_p_gb:g}, "
-                 f"delay {net.delay_ms:g} ms", fontsize=9)
+    ax.set_title(f"messages dropped by faults: {faults_caption(total, None if ds is None else ds.accounted)}\n"
+                 f"loss {net.loss:g}, burst p_gb {net.burst_p_gb:g}, delay {net.delay_ms:g} ms", fontsize=8)
     ax.set_xlabel("t [s]")
     ax.set_ylabel("dropped per bin")
     ax.set_xlim(0, end)
@@ -522,6 +536,23 @@ def plot_run(mcap_path: str | pathlib.Path, out_dir: str | pathlib.Path | None =
     return written
 
 
+def animation_bar(stream) -> Callable[[int, int], None]:
+    """The progress of an animation being written: on a terminal one line redrawn in place
+    (``\\r``); otherwise (a log file, CI) a plain line at the first frame and at every tenth."""
+    tty = bool(getattr(stream, "isatty", lambda: False)())
+
+    def bar(i: int, total: int) -> None:
+        done = int(30 * (i + 1) / total)
+        text = f"  animation [{'#' * done}{'-' * (30 - done)}] {i + 1}/{total} frames"
+        if tty:
+            stream.write("\r" + text + ("\n" if i + 1 == total else ""))
+        elif i == 0 or (10 * (i + 1)) // total > (10 * i) // total:
+            stream.write(text + "\n")
+        stream.flush()
+
+    return bar
+
+
 def animate_run(view: RunView, out_dir: pathlib.Path, *, frames: int = 200, fps: int = 15,
                 progress: bool = True) -> pathlib.Path:
     """The run as an animation: MP4 where ffmpeg exists, else GIF (Pillow)."""
@@ -564,14 +595,6 @@ def animate_run(view: RunView, out_dir: pathlib.Path, *, frames: int = 200, fps:
     else:
         f, writer = out_dir / "animation.gif", PillowWriter(fps=fps)
 
-    def bar(i: int, total: int) -> None:
-        if progress:
-            done = int(30 * (i + 1) / total)
-            sys.stderr.write(f"\r  animation [{'#' * done}{'-' * (30 - done)}] {i + 1}/{total} frames")
-            if i + 1 == total:
-                sys.stderr.write("\n")
-            sys.stderr.flush()
-
-    anim.save(str(f), writer=writer, dpi=90, progress_callback=bar)
+    anim.save(str(f), writer=writer, dpi=90, progress_callback=animation_bar(sys.stderr) if progress else None)
     plt.close(fig)
     return f

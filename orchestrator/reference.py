@@ -140,7 +140,7 @@ def fields_of(cls: type, skip: tuple[str, ...] = ()) -> list[FieldInfo]:
     """The keys of config dataclass ``cls`` (init fields), in declaration order."""
     docs = field_docs(cls)
     hints = typing.get_type_hints(cls)
-    return [FieldInfo(f.name, type_name(hints.get(f.name, Any)), default_text(f), " ".join(docs.get(f.name, "").split()))
+    return [FieldInfo(f.name, type_name(hints.get(f.name, Any)), default_text(f), _md(" ".join(docs.get(f.name, "").split())))
             for f in dataclasses.fields(cls) if f.init and f.name not in skip]
 
 

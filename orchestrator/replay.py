@@ -99,7 +99,7 @@ def format_info(info: dict) -> str:
         f"Clock:        {info['clock']}",
         f"Robots:       {', '.join(info['robots'])}",
         f"Outcome:      {info['outcome'].get('ok', '?')}  {info['outcome'].get('reason', '')}",
-        f"Duration:     {info['duration_s']:.3f} s (wall)",
+        f"Duration:     {info['duration_s']:.3f} s (wall clock, first to last message of the log)",
         f"Messages:     {info['messages']}",
         f"Channels:     {len(info['channels'])}",
     ]

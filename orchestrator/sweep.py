@@ -240,9 +240,12 @@ def format_summary(rows: list[SweepRow]) -> str:
     return "\n".join([*lines, f"({legend})"])
 
 
-def plot_sweep(rows: list[SweepRow], out_dir: str | pathlib.Path) -> list[pathlib.Path]:
+def plot_sweep(rows: list[SweepRow], out_dir: str | pathlib.Path,
+               thresholds: dict[str, float] | None = None) -> list[pathlib.Path]:
     """One PNG per headline figure: mean over seeds (line) and worst (dashed) against the
-    first swept key, one line per value of the other swept keys (the seed if nothing else is swept)."""
+    first swept key, one line per value of the other swept keys (the seed if nothing else is swept).
+    ``thresholds`` (metric key -> threshold, the scenario's ``[targets]``) draws each figure's
+    target as a horizontal red line, labelled with its direction (at most / at least)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -281,6 +284,9 @@ def plot_sweep(rows: list[SweepRow], out_dir: str | pathlib.Path) -> list[pathli
                         label=f"{name} (worst)" if rest else "worst")
             if not numeric:
                 ax.set_xticks(x, [xs_raw[i] for i in order])
+        if thresholds and k in thresholds:  # the scenario's target (copath.targets: at most or at least)
+            words = "at most" if targets.TARGETS.get(k, ("", targets.AT_MOST))[1] == targets.AT_MOST else "at least"
+            ax.axhline(thresholds[k], color="red", lw=1.0, ls=":", label=f"target: {words} {thresholds[k]:g}")
         ax.set_xlabel(xkey)
         ax.set_ylabel(k)
         ax.grid(True, alpha=0.3)

@@ -204,6 +204,10 @@ def test_api_run_log_reads_back_and_info_shows_the_run(tmp_path, capsys):
     for name in poses:
         assert (back.poses()[name] == poses[name]).all()
     assert [r.passed for r in back.grade()] == [r.passed for r in run.grade()]
+    assert copath(["info", str(tmp_path / "run.mcap")]) == 0  # both wall-clock spans, each said what it is
+    out = capsys.readouterr().out
+    assert "(wall clock, first to last message of the log)" in out
+    assert f"Run time:     {run.metrics['wall_time_s']:.1f} s (wall clock, metrics.json wall_time_s" in out
     (tmp_path / "metrics.json").unlink()  # info computes the figures from the log alone
     assert copath(["info", str(tmp_path / "run.mcap")]) == 0
     out = capsys.readouterr().out
@@ -221,3 +225,113 @@ def test_api_frame_is_a_dataframe_where_pandas_is_installed():
     df = run.frame()
     assert isinstance(df, pd.DataFrame) and len(df) == 3 * 20
     assert {"robot", "t", "x", "y", "theta"} <= set(df.columns)
+
+
+# --- issue 21: the CLI items ---
+
+_VALID = """
+id = "v"
+[run]
+duration_s = 10.0
+[paths.main]
+type = "circle"
+radius = 1.0
+[controller]
+type = "consensus"
+[[robots]]
+name = "r1"
+path = "main"
+pose = [1.0, 0.0, 1.57]
+neighbours = ["r2"]
+[[robots]]
+name = "r2"
+path = "main"
+pose = [-1.0, 0.0, -1.57]
+"""
+
+
+def test_validate_takes_set_like_run(tmp_path, capsys):
+    f = tmp_path / "v.toml"
+    f.write_text(_VALID)
+    assert copath(["validate", str(f), "--set", "network.loss=0.2", "--set", "controller.v0=0.3"]) == 0
+    assert "ok (v, 2 robots" in capsys.readouterr().out
+    assert copath(["validate", str(f), "--set", "network.loss=2", "--set", "controller.v0=-1"]) == 2
+    err = capsys.readouterr().err
+    assert "network.loss = 2.0 is not allowed; must be a probability in [0, 1]" in err
+    assert err.count("v0 = -1.0 is not allowed") == 1 and "controller.v0 = -1.0" in err  # once, not per robot
+    assert "line " not in err  # a value given with --set has no line in the file
+    assert copath(["validate", str(f), "--set", "nonsense"]) == 2
+
+
+def test_a_reader_that_goes_away_ends_the_output_quietly():
+    """``copath controllers | head``: the pipe closes before copath writes; no traceback."""
+    import subprocess
+    import sys
+
+    p = subprocess.Popen([sys.executable, "-m", "orchestrator", "controllers"], stdout=subprocess.PIPE,
+                         stderr=subprocess.PIPE)
+    p.stdout.close()  # the reader is gone before the first line is written
+    try:
+        _, err = p.communicate(timeout=120)
+    finally:
+        if p.poll() is None:
+            p.kill()
+    assert b"Traceback" not in err and b"BrokenPipeError" not in err, err.decode()
+    assert p.returncode == 1
+
+
+def test_controllers_lists_each_parameter_with_type_default_and_meaning(capsys):
+    assert copath(["controllers", "consensus"]) == 0
+    out = capsys.readouterr().out
+    assert "v0 (number, default 0.2): Group speed" in out
+    assert "s0 (number (optional), default (none)): Initial path coordinate" in out
+    assert copath(["controllers", "no_such_law"]) == 2
+
+
+def test_animation_progress_is_plain_lines_when_not_a_terminal():
+    from orchestrator.plot import animation_bar
+
+    class Tty(io.StringIO):
+        def isatty(self):
+            return True
+
+    log, tty = io.StringIO(), Tty()
+    for bar in (animation_bar(log), animation_bar(tty)):
+        for i in range(200):
+            bar(i, 200)
+    assert "\r" not in log.getvalue()
+    assert len(log.getvalue().splitlines()) == 11  # the first frame and every tenth
+    assert tty.getvalue().count("\r") == 200
+
+
+def test_faults_title_says_what_each_count_is():
+    from orchestrator.plot import faults_caption
+
+    text = faults_caption(967, 964)
+    assert "967 replayed from the log" in text and "964 counted by the receivers" in text
+    assert "in flight at the end" in text
+    assert faults_caption(12, 12) == "12 (replayed from the log = the receivers' own count)"
+
+
+def test_sweep_plots_draw_the_scenarios_target(tmp_path, monkeypatch):
+    import matplotlib.pyplot as plt
+
+    kept = []
+    monkeypatch.setattr(plt, "close", lambda fig=None: kept.append(fig))
+    rows = [sweep.SweepRow(i, {"network.loss": loss}, f"r{i}", True, None,
+                           {"coordination_error_max_m": 0.01 + loss, "collisions": 0}, 1, 1, 1.0)
+            for i, loss in enumerate((0.0, 0.1, 0.2))]
+    sweep.plot_sweep(rows, tmp_path, {"coordination_error_max_m": 0.02})
+    lines = {fig.axes[0].get_ylabel(): [ln.get_label() for ln in fig.axes[0].get_lines()] for fig in kept}
+    assert "target: at most 0.02" in lines["coordination_error_max_m"]
+    assert not any(lb.startswith("target") for lb in lines["collisions"])  # no target for it
+
+
+def test_run_scenario_metrics_say_ok_like_api_run():
+    from orchestrator.inprocess import run_scenario
+
+    s = api.load("e5.5", {"run.duration_s": 0.5, "run.settle_s": 0.0})
+    res = run_scenario(s)
+    assert res.metrics["ok"] is True and res.metrics["failure"] is None
+    run = api.run(s, inprocess=True)
+    assert run.metrics["ok"] is True and run.ok

@@ -92,3 +92,78 @@ def test_data_files_are_read_into_the_scenario(tmp_path):
     (tmp_path / "bad.toml").write_text((tmp_path / "s.toml").read_text().replace("shape.csv", "missing.csv"))
     with pytest.raises(ConfigError, match="shape_file = 'missing.csv' is not allowed; no such file"):
         load_scenario(tmp_path / "bad.toml")
+
+
+# --- issue 21: each problem once, with its line; offsets from one source ---
+
+_TEAM = """
+id = "t"
+[paths.main]
+type = "circle"
+radius = 1.0
+[controller]
+type = "consensus"
+k2 = 0.5
+[[robots]]
+name = "r1"
+path = "main"
+pose = [1.0, 0.0, 1.57]
+neighbours = ["r2"]
+controller = { s_d = 0.5 }
+[[robots]]
+name = "r2"
+path = "main"
+pose = [-1.0, 0.0, -1.57]
+"""
+
+
+def _errors(tmp_path, text):
+    from orchestrator.validate import validate_file
+
+    f = tmp_path / "t.toml"
+    f.write_text(text)
+    with pytest.raises(ConfigError) as e:
+        validate_file(f)
+    return e.value.errors
+
+
+def test_a_typo_in_the_shared_controller_table_is_reported_once_with_its_line(tmp_path):
+    errors = _errors(tmp_path, _TEAM.replace("k2 = 0.5", "k_two = 0.5"))
+    assert len(errors) == 1, errors
+    assert errors[0].startswith("line 8: controller.k_two = 0.5 is not allowed; allowed keys: ")
+
+
+def test_a_robots_own_typo_names_the_robot_and_its_line(tmp_path):
+    errors = _errors(tmp_path, _TEAM.replace("controller = { s_d = 0.5 }", "controller = { s_dd = 0.5 }"))
+    assert errors == [e for e in errors if e.startswith("line 14: robots.r1.controller.s_dd = 0.5 is not allowed")]
+    assert len(errors) == 1
+
+
+def test_an_invalid_path_table_is_reported_once_without_a_cascade(tmp_path):
+    errors = _errors(tmp_path, _TEAM.replace("radius = 1.0", "radius = -1.0"))
+    assert errors == ["line 5: paths.main.radius = -1.0 is not allowed; a curve size must be a number > 0"]
+
+
+def test_controller_offsets_and_declared_offsets_must_agree(tmp_path):
+    base = _TEAM + "[metrics]\npath_offsets = { r1 = 0.5, r2 = 0.0 }\n"
+    from orchestrator.validate import validate_file
+
+    f = tmp_path / "ok.toml"
+    f.write_text(base)
+    assert validate_file(f).metrics["path_offsets"] == {"r1": 0.5, "r2": 0.0}  # r2: the default s_d = 0
+    errors = _errors(tmp_path, base.replace("r1 = 0.5, r2 = 0.0", "r1 = 0.6, r2 = 0.25"))
+    assert len(errors) == 2, errors
+    assert "robots.r1.controller.s_d = 0.5 is not allowed; metrics.path_offsets.r1 = 0.6" in errors[0]
+    assert "robot r1 (s_d given)" in errors[0]
+    assert "robots.r2.controller.s_d = 0.0 is not allowed; metrics.path_offsets.r2 = 0.25" in errors[1]
+    assert "(s_d its controller's default)" in errors[1]
+
+
+def test_key_lines_place_tables_entries_by_index_and_name_and_inline_keys():
+    from copath.scenario import key_lines
+
+    lines = key_lines(_TEAM)
+    assert lines["controller.k2"] == 8
+    assert lines["robots[0].pose"] == lines["robots.r1.pose"] == 12
+    assert lines["robots.r1.controller.s_d"] == 14
+    assert lines["robots.r2.path"] == 17 and lines["paths.main.radius"] == 5

@@ -39,7 +39,7 @@ pose = [1.0, 0.0, 0.0]
 # (what is broken, how the file is changed, the one-line error expected)
 BROKEN = [
     ("controller parameter typo", lambda s: s.replace('type = "consensus"', 'type = "consensus"\nk_one = 5.0'),
-     r"robots\.r1\.controller\.k_one = 5\.0 is not allowed; allowed keys: .*k1"),
+     r"line 11: controller\.k_one = 5\.0 is not allowed; allowed keys: .*k1"),  # once, not per robot
     ("settle after the end", lambda s: s.replace("settle_s = 5.0", "settle_s = 12.0"),
      r"run\.settle_s = 12\.0 is not allowed; must be less than run\.duration_s = 10\.0"),
     ("negative curve size", lambda s: s.replace("a = 2.3", "a = -2.3"),
@@ -54,9 +54,9 @@ BROKEN = [
     ("partition names a stranger", lambda s: s + '[network]\npartitions = [{links = [["r1", "r9"]]}]\n',
      r"network\.partitions\[0\]\.links = \['r1', 'r9'\] is not allowed; must name two robots"),
     ("unknown controller", lambda s: s.replace('type = "consensus"', 'type = "consensos"'),
-     r"robots\.r1\.controller\.type = 'consensos' is not allowed; registered: .*consensus"),
+     r"line 10: controller\.type = 'consensos' is not allowed; registered: .*consensus"),
     ("import path to nowhere", lambda s: s.replace('type = "consensus"', 'type = "no_such_pkg.law:build"'),
-     r"robots\.r1\.controller\.type = 'no_such_pkg\.law:build' is not allowed; no module named 'no_such_pkg'"),
+     r"controller\.type = 'no_such_pkg\.law:build' is not allowed; no module named 'no_such_pkg'"),
     ("declared geometry misses a robot", lambda s: s + '[metrics]\npath_offsets = { r1 = 0.0, r2 = 0.5 }\n',
      r"metrics\.path_offsets = \{'r1': 0\.0, 'r2': 0\.5\} is not allowed; must give an offset for each robot: "
      r"r1, r2, r3"),

@@ -251,6 +251,18 @@ def _models() -> str:
                        + _table(fields_of(cls)) for kind, cls in MODEL_TYPES.items())
 
 
+def _world() -> str:
+    from copath.ros2.config import RobotIO, WorldConfig
+
+    world = fields_of(WorldConfig)
+    world.insert(2, FieldInfo("pose_type", "string", '"odometry"', "Default pose source of every robot: "
+                              "`odometry` (nav_msgs/Odometry) or `pose_stamped` (geometry_msgs/PoseStamped)."))
+    defaults = {"pose_topic": "/<robot>/odom (odometry) or /<robot>/pose (pose_stamped)",
+                "pose_type": "[world] pose_type", "cmd_topic": "/<robot>/cmd_vel"}
+    io = [dataclasses.replace(f, default=defaults.get(f.name, f.default)) for f in fields_of(RobotIO)]
+    return _table(world) + "\n\nEach `[world.robots.NAME]` (every key optional):\n\n" + _table(io)
+
+
 def _obstacles() -> str:
     from copath.scenario import ObstacleSpec
 
@@ -355,6 +367,7 @@ BLOCKS: dict[str, Callable[[], str]] = {
     "paths": _paths,
     "models": _models,
     "obstacles": _obstacles,
+    "world": _world,
     "metrics": _metrics_table,
     "safety": _safety,
     "targets": _targets,

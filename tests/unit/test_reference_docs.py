@@ -13,6 +13,7 @@ from copath.estimation import EstimatorConfig, SensorProfile
 from copath.metrics_config import MetricsConfig
 from copath.models import MODEL_TYPES
 from copath.paths import PATH_TYPES, Path, PathTable
+from copath.ros2.config import RobotIO, WorldConfig
 from copath.safety import SafetyConfig
 from copath.scenario import (_ROBOT_KEYS, _TOP_KEYS, NetworkConfig, NoiseConfig, ObstacleSpec, Partition, RunConfig,
                              SensorConfig, Silence, parse_scenario)
@@ -53,7 +54,7 @@ def test_every_generated_block_is_on_a_page():
     (RunConfig, "[run]"), (NetworkConfig, "[network]"), (Partition, "[network]"), (Silence, "[network]"),
     (NoiseConfig, "[noise]"), (SensorConfig, "[sensors]"), (EstimatorConfig, "[sensing]"),
     (SensorProfile, "[sensing]"), (ObstacleSpec, "[[obstacles]]"), (MetricsConfig, "[metrics]"),
-    (SafetyConfig, "[safety]"), *[(cls, "[[robots]]") for cls in MODEL_TYPES.values()],
+    (SafetyConfig, "[safety]"), (WorldConfig, "[world]"), *[(cls, "[[robots]]") for cls in MODEL_TYPES.values()],
 ])
 def test_every_key_of_every_table_is_documented_with_its_default(cls, section):
     text = (DOCS / "scenarios.md").read_text()
@@ -73,8 +74,9 @@ def test_no_documented_key_is_unknown():
     text = (DOCS / "scenarios.md").read_text()
     known = {f.name for cls in (RunConfig, NetworkConfig, Partition, Silence, NoiseConfig, SensorConfig,
                                 EstimatorConfig, SensorProfile, ObstacleSpec, MetricsConfig, SafetyConfig,
-                                *MODEL_TYPES.values()) for f in dataclasses.fields(cls)}
-    known |= set(_TOP_KEYS) | set(_ROBOT_KEYS) | set(TARGETS) | {"profile", "estimator", "solve_time_s", "robots"}
+                                WorldConfig, RobotIO, *MODEL_TYPES.values()) for f in dataclasses.fields(cls)}
+    known |= set(_TOP_KEYS) | set(_ROBOT_KEYS) | set(TARGETS) | {"profile", "estimator", "solve_time_s", "robots",
+                                                               "pose_type"}
     assert set(_rows(text)) <= known, set(_rows(text)) - known
 
 

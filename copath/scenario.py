@@ -1,5 +1,8 @@
 """Scenario model: one validated object per ``configs/*.toml`` file.
 
+The reference of every table and key (type, default, meaning) is docs/scenarios.md,
+generated from the dataclasses below (``python -m orchestrator.reference``).
+
 The TOML layout (every table optional unless said)::
 
     id = "my-test"                   # free scenario name: letters, digits, "-", "_", "."

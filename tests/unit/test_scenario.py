@@ -167,3 +167,11 @@ def test_key_lines_place_tables_entries_by_index_and_name_and_inline_keys():
     assert lines["robots[0].pose"] == lines["robots.r1.pose"] == 12
     assert lines["robots.r1.controller.s_d"] == 14
     assert lines["robots.r2.path"] == 17 and lines["paths.main.radius"] == 5
+
+
+def test_key_lines_follow_sub_tables_of_the_last_array_entry():
+    from copath.scenario import key_lines
+
+    text = '[[robots]]\nname = "r1"\n[robots.controller]\ns_d = 1.2\n[[robots]]\nname = "r2"\n[robots.controller]\ns_d = 0.6\n'
+    lines = key_lines(text)
+    assert lines["robots.r1.controller.s_d"] == 4 and lines["robots.r2.controller.s_d"] == 8

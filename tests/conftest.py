@@ -1,4 +1,17 @@
-"""Shared test configuration: hypothesis profile and scenario helpers."""
+"""Shared test configuration: test tiers, hypothesis profile and scenario helpers.
+
+Tiers (README "Test tiers"; the markers are registered in pyproject.toml):
+
+- ``fleet``: the test starts real processes over Zenoh. Every test under tests/integration is
+  marked so here, and so is any test marked with the older name ``integration``, or, under
+  tests/faults, any test that takes the ``procs`` fixture (the one that kills by pid).
+- ``faults``: a fault or trust case. Every test under tests/faults is marked so here.
+- ``slow``: a long run, marked by hand on the test.
+- ``smoke``: the one fleet test kept in the fast tier (a short E5.5 lockstep fleet).
+
+``python -m pytest -q`` (pyproject's ``addopts``) runs the fast tier: everything that is none
+of fleet, faults or slow, plus the smoke test. A ``-m`` on the command line replaces that
+selection (``-m 'faults and not slow'``)."""
 
 from __future__ import annotations
 
@@ -7,12 +20,32 @@ import pathlib
 import pytest
 from hypothesis import HealthCheck, settings
 
+REPO = pathlib.Path(__file__).resolve().parents[1]
+CONFIGS = REPO / "configs"
+TESTS = REPO / "tests"
+
 settings.register_profile("copath", deadline=None, max_examples=60,
                           suppress_health_check=[HealthCheck.too_slow])
 settings.load_profile("copath")
 
-REPO = pathlib.Path(__file__).resolve().parents[1]
-CONFIGS = REPO / "configs"
+
+def _under(item: pytest.Item, folder: str) -> bool:
+    return pathlib.Path(str(item.path)).resolve().is_relative_to(TESTS / folder)
+
+
+@pytest.hookimpl(tryfirst=True)  # before ``-m`` deselects by marker
+def pytest_collection_modifyitems(config, items) -> None:
+    """Mark each test with its tier by the folder it lives in (module docstring)."""
+    for item in items:
+        fleet = item.get_closest_marker("fleet") is not None or item.get_closest_marker("integration") is not None
+        if _under(item, "integration"):
+            fleet = True
+        if _under(item, "faults"):
+            if item.get_closest_marker("faults") is None:
+                item.add_marker(pytest.mark.faults)
+            fleet = fleet or "procs" in getattr(item, "fixturenames", ())
+        if fleet and item.get_closest_marker("fleet") is None:
+            item.add_marker(pytest.mark.fleet)
 
 
 @pytest.fixture(scope="session")

@@ -27,7 +27,7 @@ def test_in_process_the_team_coordinates_without_collisions():
     assert max(r["path_error_max_m"] for r in m["robots"].values()) < 0.02
 
 
-@pytest.mark.integration
+@pytest.mark.fleet
 def test_copath_run_from_this_directory_runs_the_user_controller_as_a_fleet(tmp_path):
     out = tmp_path / "run"
     env = dict(os.environ)

@@ -1,5 +1,6 @@
-"""The fault and trust suite (issue 10): ``python -m pytest -q tests/faults`` runs the
-fast cases, ``-m slow`` adds the long ones. Every process a test starts is killed by pid."""
+"""The fault and trust suite (issue 10), the faults tier: ``python -m pytest -q -m 'faults
+and not slow'`` runs it, ``-m slow`` the long ones (README "Test tiers"; every test here is
+marked ``faults`` by tests/conftest.py). Every process a test starts is killed by pid."""
 
 from __future__ import annotations
 

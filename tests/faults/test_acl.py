@@ -78,7 +78,7 @@ def test_every_bundled_scenario_runs_within_its_grants(path: pathlib.Path):
         assert any("/peer/" in k for k in keys)
 
 
-@pytest.mark.integration
+@pytest.mark.fleet
 @pytest.mark.timeout(60)
 @pytest.mark.parametrize("overhear", [False, True])
 def test_the_router_refuses_and_grants_what_the_policy_does(tmp_path, overhear):

@@ -9,7 +9,7 @@ from orchestrator.cli import main as copath
 from orchestrator.mcaplog import iter_raw
 from tests.conftest import config
 
-pytestmark = [pytest.mark.integration, pytest.mark.timeout(300)]
+pytestmark = [pytest.mark.fleet, pytest.mark.timeout(300)]
 
 _WALL_CLOCK = {"cmd": ("solve_ms",), "start": ("wall_t0",)}
 """Fields that measure the machine, not the run."""

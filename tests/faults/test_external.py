@@ -14,7 +14,7 @@ from tests.conftest import config
 
 from .test_determinism import _payloads
 
-pytestmark = [pytest.mark.integration, pytest.mark.timeout(300)]
+pytestmark = [pytest.mark.fleet, pytest.mark.timeout(300)]
 
 
 def test_an_external_robot_joins_and_the_run_is_the_same(tmp_path, procs, capsys):

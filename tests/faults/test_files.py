@@ -81,7 +81,7 @@ def test_a_truncated_log_is_read_up_to_its_last_complete_chunk(tmp_path, good_lo
     assert m["ok"] is False and "cut short" in m["failure"]
 
 
-@pytest.mark.integration
+@pytest.mark.fleet
 @pytest.mark.timeout(240)
 def test_a_log_whose_orchestrator_was_killed_is_reported_as_cut_short(tmp_path, procs, capsys):
     p = procs.start(["-m", "orchestrator", "run", str(config("e5.5-")), "--out", str(tmp_path), "--run-id", "killed",

@@ -17,7 +17,7 @@ from copath.wire.session import SessionConfig, ZenohLink, free_port, loopback_en
 from orchestrator.mcaplog import read_log
 from tests.conftest import config
 
-pytestmark = [pytest.mark.integration, pytest.mark.timeout(240)]
+pytestmark = [pytest.mark.fleet, pytest.mark.timeout(240)]
 
 
 def _attacker(endpoint: str) -> ZenohLink:

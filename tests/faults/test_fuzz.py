@@ -17,7 +17,7 @@ from copath.wire.messages import WIRE_VERSION, Command, End, Obs, PeerEnvelope, 
 from copath.wire.session import SessionConfig, ZenohLink, free_port, loopback_endpoint
 from tests.conftest import config
 
-pytestmark = [pytest.mark.integration, pytest.mark.timeout(300)]
+pytestmark = [pytest.mark.fleet, pytest.mark.timeout(300)]
 
 
 def _fuzz_payloads(rng: random.Random, n: int, victim: str, neighbour: str) -> list[bytes]:

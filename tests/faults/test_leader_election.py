@@ -253,7 +253,7 @@ def test_every_follower_picks_the_same_leader_and_a_cut_off_one_picks_none():
     assert cut.leader == "leader" and cut.term == 0
 
 
-@pytest.mark.integration
+@pytest.mark.fleet
 @pytest.mark.slow
 @pytest.mark.timeout(900)
 def test_a_restarted_leader_follows_the_new_one_in_a_fleet(tmp_path, procs):

@@ -12,7 +12,7 @@ from copath.wire.session import SessionConfig, ZenohLink, free_port, loopback_en
 from orchestrator.mcaplog import Recorder, iter_raw
 from orchestrator.replay import parse_wait_for
 
-pytestmark = [pytest.mark.integration, pytest.mark.timeout(240)]
+pytestmark = [pytest.mark.fleet, pytest.mark.timeout(240)]
 
 
 @pytest.fixture

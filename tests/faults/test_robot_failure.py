@@ -16,7 +16,7 @@ from orchestrator.mcaplog import read_log
 from tests.conftest import config
 from tests.integration.conftest import child_pids, cmdline
 
-pytestmark = [pytest.mark.integration, pytest.mark.timeout(300)]
+pytestmark = [pytest.mark.fleet, pytest.mark.timeout(300)]
 
 
 def _start(procs, out, policy, duration="200"):

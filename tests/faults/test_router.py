@@ -21,7 +21,7 @@ from tests.conftest import config
 
 from .hosts import ADDR_A, ADDR_B, endpoint, popen, start_router, stop_all, two_hosts, wait_for_file, why_not
 
-pytestmark = [pytest.mark.integration, pytest.mark.timeout(300)]
+pytestmark = [pytest.mark.fleet, pytest.mark.timeout(300)]
 
 REMOTE = ("r2", "r3")
 

@@ -17,7 +17,7 @@ from orchestrator.mcaplog import read_log
 from orchestrator.security import acl_config
 from tests.conftest import config
 
-pytestmark = [pytest.mark.integration, pytest.mark.timeout(300)]
+pytestmark = [pytest.mark.fleet, pytest.mark.timeout(300)]
 
 
 def _session(endpoint: str, config_file=None, timeout_ms: int = 3000) -> ZenohLink:

@@ -9,7 +9,7 @@ import pytest
 
 from orchestrator.cli import main as copath
 
-pytestmark = [pytest.mark.integration, pytest.mark.timeout(300)]
+pytestmark = [pytest.mark.fleet, pytest.mark.timeout(300)]
 
 
 def _bench(capsys, *argv: str) -> dict:

@@ -15,7 +15,7 @@ from orchestrator.inprocess import run_scenario
 from orchestrator.mcaplog import read_log
 from tests.conftest import config
 
-pytestmark = [pytest.mark.integration, pytest.mark.timeout(300)]
+pytestmark = [pytest.mark.fleet, pytest.mark.timeout(300)]
 
 
 def _tasks_done(records) -> list[float]:

@@ -21,7 +21,7 @@ from tests.conftest import config
 
 from .conftest import child_pids, cmdline
 
-pytestmark = [pytest.mark.integration, pytest.mark.timeout(180)]
+pytestmark = [pytest.mark.fleet, pytest.mark.timeout(180)]
 
 
 @pytest.fixture(scope="module")

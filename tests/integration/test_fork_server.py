@@ -17,7 +17,7 @@ from tests.conftest import config
 
 from .conftest import child_pids, cmdline
 
-pytestmark = [pytest.mark.integration, pytest.mark.timeout(300)]
+pytestmark = [pytest.mark.fleet, pytest.mark.timeout(300)]
 
 
 def _run(tmp_path, name: str, fork: bool, duration: float = 6.0, clock: str = "lockstep"):

@@ -22,7 +22,7 @@ from orchestrator.mcaplog import write_records
 from orchestrator.viz import TOPICS
 from tests.conftest import config
 
-pytestmark = [pytest.mark.integration, pytest.mark.timeout(180)]
+pytestmark = [pytest.mark.fleet, pytest.mark.timeout(180)]
 
 SUBPROTOCOL = "foxglove.sdk.v1"
 

@@ -12,7 +12,7 @@ from orchestrator.inprocess import run_scenario
 from orchestrator.mcaplog import read_log
 from tests.conftest import CONFIGS, config
 
-pytestmark = [pytest.mark.integration, pytest.mark.timeout(400)]
+pytestmark = [pytest.mark.fleet, pytest.mark.timeout(400)]
 
 
 def _run(tmp_path, prefix, *extra):

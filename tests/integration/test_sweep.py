@@ -9,7 +9,7 @@ import pytest
 from orchestrator.cli import main as copath
 from orchestrator.mcaplog import read_log
 
-pytestmark = pytest.mark.integration
+pytestmark = pytest.mark.fleet
 
 
 def test_sweep_of_fleets_runs_each_setting_as_its_own_fleet(tmp_path, capsys):

@@ -2,8 +2,10 @@
 scenario as package data, and ``copath scenarios`` / ``copath run e5.5`` / ``copath info``
 run from a fresh virtual environment outside the checkout.
 
-The venv sees the machine's site-packages for the heavy dependencies (Zenoh, CasADi),
-but copath itself comes only from the wheel: the test checks where it is imported from.
+The venv takes the heavy dependencies (Zenoh, CasADi, foxglove) from the environment the
+tests run in, through a ``.pth`` file naming that environment's site-packages: not from the
+machine's system site-packages, which a user's own venv does not have. copath itself comes
+only from the wheel: the test checks where it is imported from.
 """
 
 from __future__ import annotations
@@ -12,15 +14,17 @@ import os
 import pathlib
 import shutil
 import signal
+import site
 import subprocess
 import sys
+import sysconfig
 import zipfile
 
 import pytest
 
 from copath.wire.session import free_port, loopback_endpoint
 
-pytestmark = pytest.mark.integration
+pytestmark = pytest.mark.fleet
 
 REPO = pathlib.Path(__file__).resolve().parents[2]
 NETWORK_HINTS = ("NewConnectionError", "Temporary failure in name resolution", "Could not find a version",
@@ -76,11 +80,32 @@ def test_wheel_carries_every_bundled_scenario(wheel):
     assert not any(n.startswith(("tests/", "configs/")) for n in names)
 
 
-def test_plain_install_runs_a_bundled_scenario_from_another_directory(wheel, tmp_path):
-    venv = tmp_path / "venv"
-    res = _run([sys.executable, "-m", "venv", "--system-site-packages", str(venv)], tmp_path, 120)
+def running_site_packages() -> list[str]:
+    """The site-packages of the environment running the tests (a venv's own, or the
+    interpreter's, and the user site where it is on), in import order."""
+    dirs = [sysconfig.get_paths()["purelib"], sysconfig.get_paths()["platlib"], *site.getsitepackages()]
+    if site.ENABLE_USER_SITE:
+        dirs.append(site.getusersitepackages())
+    return [d for d in dict.fromkeys(dirs) if os.path.isdir(d)]
+
+
+def venv_seeing_running_packages(venv: pathlib.Path) -> pathlib.Path:
+    """A venv without system site-packages whose own site-packages ends with a ``.pth`` naming
+    :func:`running_site_packages`: the wheel installed into it comes first, the running
+    environment's packages after it. Plain path lines: the ``.pth`` files of those folders (an
+    editable copath among them) are not run. Returns the venv's bin folder."""
+    res = _run([sys.executable, "-m", "venv", str(venv)], venv.parent, 120)
     assert res.returncode == 0, res.stderr
     bin_ = venv / "bin"
+    own = _run([str(bin_ / "python"), "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"], venv.parent, 60)
+    assert own.returncode == 0, own.stderr
+    pathlib.Path(own.stdout.strip(), "zz-running-environment.pth").write_text("\n".join(running_site_packages()) + "\n")
+    return bin_
+
+
+def test_plain_install_runs_a_bundled_scenario_from_another_directory(wheel, tmp_path):
+    venv = tmp_path / "venv"
+    bin_ = venv_seeing_running_packages(venv)
     res = _run([str(bin_ / "python"), "-m", "pip", "install", "--no-deps", "--no-index", "-q", str(wheel)], tmp_path, 300)
     assert res.returncode == 0, res.stderr
     work = tmp_path / "elsewhere"

@@ -31,16 +31,24 @@ import queue
 import sys
 import threading
 import time
+from typing import NamedTuple
 
 from copath.scenario import ConfigError, load_scenario
 from copath.wire.cli import add_config_arguments, session_config_from_args
 from copath.wire.keys import Keys
 from copath.wire.link import Link, key_matches
 from copath.wire.messages import Command, End, Event, Obs, PeerEnvelope, Start, Stats
+from copath.wire.trust import relative_key
 
 from .runtime import RobotRuntime
 
 logger = logging.getLogger("copath.agent")
+
+
+class _Refused(NamedTuple):
+    """A refused record on ``sender``'s peer key, queued with the peer messages (the barrier)."""
+
+    sender: str
 
 __all__ = ["AgentNode", "main"]
 
@@ -104,16 +112,36 @@ class AgentNode:
                 with self._arrived:
                     self._arrived.notify()
 
+    def _on_peer_refused(self, key: str, error: str) -> None:
+        """The link refused a record on a peer key this robot listens to (NaN in a payload,
+        a record that does not decode): the barrier counts it as delivered-and-dropped for
+        the sender its key names (``peer/<sender>/all``, ``peer/<sender>/to/<me>``), so it
+        does not wait for it. Only the key can say who sent it; on an open bus a stranger
+        can publish on any key, as it can publish well-formed messages (docs/faults.md)."""
+        rel = relative_key(key)
+        if len(rel) >= 3 and rel[0] == "peer":
+            self.peers.append(_Refused(rel[1]))
+            if not self.inline:
+                with self._arrived:
+                    self._arrived.notify()
+
+    def _on_overheard_refused(self, key: str, error: str) -> None:
+        if self._also_peer_key(key):
+            self._on_peer_refused(key, error)
+
+    def _also_peer_key(self, key: str) -> bool:
+        hit = self._also_peer.get(key)
+        if hit is None:
+            hit = self._also_peer[key] = any(key_matches(key, e) for e in self._peer_exprs)
+        return hit
+
     def _on_overheard(self, key: str, rec) -> None:
         if isinstance(rec, PeerEnvelope):
             self.overheard.append(rec)
 
     def _on_overheard_or_peer(self, key: str, rec) -> None:
         self._on_overheard(key, rec)
-        hit = self._also_peer.get(key)
-        if hit is None:
-            hit = self._also_peer[key] = any(key_matches(key, e) for e in self._peer_exprs)
-        if hit:
+        if self._also_peer_key(key):
             self._on_peer(key, rec)
 
     def _on_sim(self, key: str, rec) -> None:
@@ -232,7 +260,11 @@ class AgentNode:
 
     def _drain_peers(self) -> None:
         while self.peers:
-            self.rt.receive(self.peers.popleft())
+            env = self.peers.popleft()
+            if type(env) is _Refused:
+                self.rt.refused(env.sender)
+            else:
+                self.rt.receive(env)
         while self.overheard:
             self.rt.overhear(self.overheard.popleft())
 
@@ -277,10 +309,10 @@ class AgentNode:
         self._peer_exprs = peer
         self._also_peer: dict[str, bool] = {}
         for key in over:
-            self.link.subscribe(key, self._on_overheard_or_peer)
+            self.link.subscribe(key, self._on_overheard_or_peer, on_reject=self._on_overheard_refused)
         for key in peer:
             if not any(key_matches(key.replace("*", "_"), e) for e in over):
-                self.link.subscribe(key, self._on_peer)
+                self.link.subscribe(key, self._on_peer, on_reject=self._on_peer_refused)
         self.link.subscribe(self.keys.start, self._on_sim)
         self.link.subscribe(self.keys.end, self._on_sim)
         self.link.watch_liveliness(self.keys.alive("sim"), self._on_sim_alive)

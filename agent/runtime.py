@@ -7,8 +7,9 @@ feeds it directly, so both run the exact same logic:
 1. peer envelopes go through the receiver-side fault layer (``copath.wire.faults``);
 2. at a control instant, released messages from beyond the communication range are
    dropped (Def. 10: the sender's position travels in the envelope, no oracle);
-3. the controller steps; an exception inside it is logged and counted and the robot
-   stops for that step (it never kills the process); a robot that has lost every other
+3. the controller steps; an exception inside it (or an invalid command) is counted and
+   the robot stops for that step (it never kills the process); the first one per robot is
+   logged with its traceback and published as a ``controller_error`` event; a robot that has lost every other
    robot (cut off: its own radio most likely went quiet) commands zero until it hears one
    again, unless its controller handles that itself (``handles_cut_off``; docs/faults.md,
    "Gone quiet");
@@ -24,6 +25,7 @@ from __future__ import annotations
 import logging
 import math
 import time
+import traceback
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -45,6 +47,11 @@ logger = logging.getLogger(__name__)
 
 _OVERHEAR_SEED = 7919
 """Offset of the seed of the safety filter's own fault streams (independent of the controller's)."""
+
+_ERROR_CHARS = 300
+"""An exception's message is cut to this length in the ``controller_error`` event."""
+_TRACEBACK_CHARS = 6000
+"""The traceback in the ``controller_error`` event keeps its last this many characters."""
 
 __all__ = ["RobotRuntime", "StepOutput", "handles_cut_off", "sensor_angles", "silent_hold_s"]
 
@@ -121,6 +128,10 @@ class RobotRuntime:
         self.faults = LinkFaults(scenario.network, scenario.run.seed, name)
         self.inbox = FaultyInbox(self.faults)
         self.counters = Counters()
+        self.log_tracebacks = True
+        """Log the first controller failure's traceback (an agent process's log); the
+        in-process loop turns it off: the traceback travels in the event, the terminal gets
+        one line (``orchestrator/failures.py``)."""
         self.seq = 0
         self.sent: dict[str, int] = {"*": 0}
         self.received_from: dict[str, int] = {}
@@ -226,6 +237,15 @@ class RobotRuntime:
                 out[sender] = n - got
         return out
 
+    def refused(self, sender: str) -> None:
+        """A message on ``sender``'s key arrived and was refused (schema, origin or stamp):
+        delivered-and-dropped for the lockstep barrier (:meth:`missing`), so it is not
+        awaited (docs/faults.md, "Rejected messages and the lockstep barrier"). Attributed by
+        the key, which names the sender: a refused message's own fields cannot be trusted."""
+        if sender != self.name and sender in self._team:
+            self.received_from[sender] = self.received_from.get(sender, 0) + 1
+            self.counters.extra["refused_from_peers"] = self.counters.extra.get("refused_from_peers", 0) + 1
+
     def peer_alive(self, name: str, alive: bool) -> None:
         """A robot's liveliness changed (its process died or froze, or it came back)."""
         if name != self.name:
@@ -249,6 +269,7 @@ class RobotRuntime:
             self._early.append(env)
             return
         if not self._stamp_ok(env, "peer"):
+            self.refused(env.sender)
             return
         self.counters.received += 1
         self.received_from[env.sender] = self.received_from.get(env.sender, 0) + 1
@@ -310,10 +331,11 @@ class RobotRuntime:
             if len(cmd) != self._cmd_size or not all(math.isfinite(c) for c in cmd):
                 raise ValueError(f"controller returned command {cmd!r}; expected {self._cmd_size} finite values")
             messages, telemetry = res.messages, dict(res.telemetry)
-        except Exception:  # the robot stops for this step instead of dying
-            logger.exception("robot %s: controller step failed at t=%.3f; stopping for this step", self.name, now)
-            self.counters.controller_errors += 1
-            cmd, messages, telemetry = [0.0] * self._cmd_size, [], {"solver_ok": False}
+        except Exception as exc:  # the robot stops for this step instead of dying
+            cmd, messages, telemetry = [0.0] * self._cmd_size, [], {"controller_error": True}
+            failure = self._controller_failed(exc, obs.k, now)
+        else:
+            failure = None
         solve_ms = (time.perf_counter() - t0) * 1e3
         hold = cut and self._holds
         if hold:  # cut off: it cannot coordinate nor see the others; it stops where the others expect it
@@ -354,8 +376,28 @@ class RobotRuntime:
             peers,
             Telemetry(obs.k, float(now), to_plain(telemetry)),
             estimate,
-            self._fault_events(now) + silence_events,
+            self._fault_events(now) + silence_events + ([failure] if failure is not None else []),
         )
+
+    def _controller_failed(self, exc: BaseException, k: int, now: float) -> Event | None:
+        """Count a failed controller step (an exception in ``step()`` or an invalid command;
+        docs/controllers.md, "When step() fails"). The first failure of this robot is logged
+        with its traceback (the process's log) and becomes a ``controller_error`` event
+        (robot, time, exception, traceback) that the orchestrator prints as one line; later
+        ones are only counted: each failed step's telemetry says ``controller_error`` (the
+        count in metrics.json) and the closing account has the total."""
+        self.counters.controller_errors += 1
+        if self.counters.controller_errors > 1:
+            return None
+        what = f"{type(exc).__name__}: {exc}"[:_ERROR_CHARS]
+        tb = "".join(traceback.format_exception(type(exc), exc, exc.__traceback__))
+        if self.log_tracebacks:
+            logger.error("robot %s: controller step failed at t=%.3f s (tick %d): %s\n%s"
+                         "the robot stops at every failing step; further failures are counted "
+                         "(controller_errors), not logged", self.name, now, k, what, tb)
+        return Event(float(now), self.name, "controller_error",
+                     {"k": int(k), "error": type(exc).__name__, "message": str(exc)[:_ERROR_CHARS],
+                      "traceback": tb[-_TRACEBACK_CHARS:]})
 
     def _cut_off(self, now: float) -> bool:
         """Every robot this robot has heard is lost, at least one by silence (docs/faults.md,
@@ -449,6 +491,9 @@ class RobotRuntime:
         return pose, rec
 
     def closing_counters(self) -> dict:
+        if self.counters.controller_errors > 1 and self.log_tracebacks:
+            logger.error("robot %s: controller step failed %d times in all (traceback of the first above)",
+                         self.name, self.counters.controller_errors)
         self.counters.dropped_by_faults = self.faults.dropped
         self.counters.partitioned = self.faults.partitioned
         self.counters.rejected = self.reject_log.total

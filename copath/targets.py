@@ -5,7 +5,14 @@ A target names a metric of ``metrics.json`` and a threshold, e.g.
 (Fig. 5.25). Each targetable metric has a sense: an error, a count of violations or a
 solve time must stay at or below its threshold; a separation, a clearance or a number of
 completed tasks must reach it. A per-robot metric is graded on the worst robot. A metric
-that is ``null`` in the run (not measured) misses its target.
+that is ``null`` in the run (not measured) misses its target, and so does a per-robot
+metric that is ``null`` for any one robot (that robot is named): a robot without a figure
+never lets the others' figures pass for the team.
+
+A robot whose controller failed (``controller_errors`` > 0: ``step()`` raised or returned an
+invalid command, and the robot stood still for that step) makes every target miss, naming
+the robot: the figures of a run in which a controller failed do not show what the
+controller can do (docs/controllers.md, "When step() fails").
 
 The grading reads only the metrics computed from the simulator's truth in the log; a
 controller never grades itself.
@@ -19,7 +26,8 @@ from typing import Any, Iterable, Mapping
 
 from .config import require
 
-__all__ = ["TARGETS", "Target", "TargetResult", "parse_targets", "grade", "meets", "worst", "figure"]
+__all__ = ["TARGETS", "Target", "TargetResult", "parse_targets", "grade", "meets", "worst", "figure",
+           "failed_robots"]
 
 AT_MOST, AT_LEAST = "<=", ">="
 
@@ -73,6 +81,9 @@ class TargetResult:
     worst: str | None
     """The robot that sets a per-robot figure, else None."""
     passed: bool
+    reason: str | None = None
+    """Why a target missed other than by its figure: a robot without the figure, or a robot
+    whose controller failed."""
 
 
 def parse_targets(table: Any) -> tuple[Target, ...]:
@@ -113,10 +124,29 @@ def figure(metrics: Mapping[str, Any], key: str) -> tuple[float | None, str | No
     return float(value), name
 
 
+def failed_robots(metrics: Mapping[str, Any]) -> dict[str, int]:
+    """Robots whose controller failed in the run, with their ``controller_errors`` (failed
+    steps), in the order of metrics.json."""
+    return {name: int(v["controller_errors"]) for name, v in (metrics.get("robots") or {}).items()
+            if (v.get("controller_errors") or 0) > 0}
+
+
 def grade(targets: tuple[Target, ...], metrics: Mapping[str, Any]) -> list[TargetResult]:
-    """Each target against a metrics.json dict; an unmeasured (null) metric fails."""
+    """Each target against a metrics.json dict. A target misses when its figure misses the
+    threshold or is unmeasured (null), when a per-robot figure is null for any robot (named
+    in ``worst``), and whenever a robot's controller failed (:func:`failed_robots`)."""
+    failed = failed_robots(metrics)
+    because = (None if not failed else "controller failed: " + ", ".join(
+        f"{name} ({n} step{'s' if n != 1 else ''})" for name, n in failed.items()))
     out = []
     for t in targets:
         value, who = figure(metrics, t.key)
-        out.append(TargetResult(t, value, who, meets(t.key, value, t.threshold)))
+        passed, reason = meets(t.key, value, t.threshold), None
+        if t.scope == "robots" and value is not None:
+            nulls = [name for name, v in (metrics.get("robots") or {}).items() if v.get(t.key) is None]
+            if nulls:
+                value, who, passed, reason = None, nulls[0], False, f"not measured for {', '.join(nulls)}"
+        if because is not None:
+            passed, reason = False, because if reason is None else f"{reason}; {because}"
+        out.append(TargetResult(t, value, who, passed, reason))
     return out

@@ -334,7 +334,8 @@ def run(scenario: Scenario | str | pathlib.Path, overrides: Mapping[str, Any] | 
 
         if sc.run.clock != "lockstep":
             raise ConfigError(f"run.clock = {sc.run.clock!r} is not allowed in-process; only lockstep runs in-process")
-        res = run_scenario(sc, run_id=rid, on_tick=on_tick)  # its metrics carry ok and failure
+        res = run_scenario(sc, run_id=rid, on_tick=on_tick,  # its metrics carry ok and failure
+                           log_dir=None if out_dir is None else pathlib.Path(out_dir) / "logs")
         out = None
         if out_dir is not None:
             from .mcaplog import write_records

@@ -39,7 +39,7 @@ from copath.scenario import ConfigError, Scenario
 from . import api
 from .validate import validate_file
 
-__all__ = ["main", "build_parser", "summary_table", "targets_table"]
+__all__ = ["main", "build_parser", "summary_table", "targets_table", "failure_lines"]
 
 logger = logging.getLogger("copath")
 
@@ -81,7 +81,21 @@ def summary_table(metrics: dict) -> str:
         lines.append(f"{name:<10}" + "".join(f"{_fmt(m.get(k)):>13}" for k, _ in cols))
     fleet = {k: v for k, v in metrics["fleet"].items() if v is not None}
     lines.append("fleet: " + "  ".join(f"{k}={_fmt(v)}" for k, v in fleet.items()))
+    lines += failure_lines(metrics)
     return "\n".join(lines)
+
+
+def failure_lines(metrics: dict) -> list[str]:
+    """The summary's loud part: each robot whose controller failed (docs/controllers.md,
+    "When step() fails"); empty when none did."""
+    from copath.targets import failed_robots
+
+    failed = failed_robots(metrics)
+    if not failed:
+        return []
+    lines = [f"CONTROLLER FAILED: robot {name}: {n} step{'s' if n != 1 else ''} raised or returned an "
+             "invalid command (the robot stood still at each); every target misses" for name, n in failed.items()]
+    return lines
 
 
 def targets_table(results) -> str:
@@ -93,7 +107,8 @@ def targets_table(results) -> str:
         t = r.target
         who = f" ({r.worst})" if r.worst else ""
         val = "not measured" if r.value is None else f"{r.value:.4g}"
-        lines.append(f"  {'PASS' if r.passed else 'MISS'}  {t.key:<28} {val:>12}{who:<6} {t.sense} {t.threshold:g}")
+        why = f"  ({r.reason})" if getattr(r, "reason", None) else ""
+        lines.append(f"  {'PASS' if r.passed else 'MISS'}  {t.key:<28} {val:>12}{who:<6} {t.sense} {t.threshold:g}{why}")
     return "\n".join(lines)
 
 
@@ -181,16 +196,19 @@ def _plots(mcap: pathlib.Path, out: pathlib.Path) -> None:
 
 def _finish(args: argparse.Namespace, scenario: Scenario, metrics: dict | None) -> int:
     """Summary table and targets; the exit code of --check."""
-    from copath.targets import grade
+    from copath.targets import failed_robots, grade
 
     if metrics is None:
         return 0
     print(summary_table(metrics))
     results = grade(scenario.targets, metrics)
     print(targets_table(results))
-    if getattr(args, "check", False) and not all(r.passed for r in results):
+    failed = failed_robots(metrics)
+    if getattr(args, "check", False) and (failed or not all(r.passed for r in results)):
         missed = [r.target.key for r in results if not r.passed]
-        print(f"copath run: --check: {len(missed)} target(s) missed: {', '.join(missed)}", file=sys.stderr)
+        why = [f"{len(missed)} target(s) missed: {', '.join(missed)}"] if missed else []
+        why += [f"the controller of {', '.join(failed)} failed"] if failed else []
+        print(f"copath run: --check: {'; '.join(why)}", file=sys.stderr)
         return EXIT_TARGETS
     return 0
 

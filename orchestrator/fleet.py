@@ -34,6 +34,7 @@ from copath.scenario import Scenario
 from copath.wire.keys import Keys
 from copath.wire.session import SessionConfig, ZenohLink, free_port, loopback_endpoint
 
+from .failures import FailureReporter
 from .mcaplog import Recorder, fault_metadata, read_log, software_version
 from .metrics import log_metrics
 from .progress import Progress
@@ -274,6 +275,8 @@ def run_fleet(scenario: Scenario, opts: RunOptions) -> RunOutcome:
                                           extra=router_extra))
     recorder = Recorder(out / "run.mcap", keys, metadata, scenario, live=live)
     router.subscribe_raw(keys.all, recorder.write)
+    # the first controller failure of each robot, one line here (its traceback is in its log)
+    router.subscribe(keys.event("*"), FailureReporter(log_dir=out / "logs"))
     common = ["--run-id", opts.run_id, "--config", str(scen_path.resolve())]  # children run in DIR/logs
     for e in connect_for_children:
         common += ["--connect", e]

@@ -18,10 +18,11 @@ the simulator publishes the truth of tick k (pose at t_k, commands applied over
 
 from __future__ import annotations
 
+import pathlib
 import time
 import uuid
 from dataclasses import dataclass, field
-from typing import Any, Callable, Mapping
+from typing import Any, Callable, Mapping, TextIO
 
 from agent.node import AgentNode
 from agent.runtime import RobotRuntime
@@ -32,6 +33,7 @@ from copath.wire.link import MemoryBus
 from copath.wire.messages import End, Stats
 from sim.node import SimNode
 
+from .failures import FailureReporter
 from .metrics import Trace, compute_metrics, trace_from_records
 
 __all__ = ["run_scenario", "RunResult"]
@@ -50,7 +52,8 @@ class RunResult:
 def run_scenario(scenario: Scenario, duration_s: float | None = None, run_id: str | None = None,
                  on_tick: Callable[[float, int], None] | None = None,
                  kills: Mapping[str, float] | None = None,
-                 restarts: Mapping[str, float] | None = None) -> RunResult:
+                 restarts: Mapping[str, float] | None = None,
+                 failures: TextIO | None = None, log_dir: str | pathlib.Path | None = None) -> RunResult:
     """Run ``scenario`` in lockstep inside this process and return metrics and trace.
 
     ``on_tick(t, n)`` is called after each tick with the sim time reached [s] and the
@@ -59,7 +62,14 @@ def run_scenario(scenario: Scenario, duration_s: float | None = None, run_id: st
     link closes: its liveliness token disappears and it answers no more observations; the
     run's ``on_robot_failure`` applies). ``restarts`` ({robot: t}): a new process of that
     robot (a new controller) starts then and joins from the current world state, as
-    ``restart`` does for a fleet (docs/faults.md)."""
+    ``restart`` does for a fleet (docs/faults.md).
+
+    Every record a node receives passes the receiver validation of a fleet's Zenoh link
+    (:func:`copath.wire.link.validate_record`: schema and origin); a rejected peer message
+    counts as delivered-and-dropped for the lockstep barrier, as over Zenoh. The first
+    controller failure of each robot is printed as one line on ``failures`` (default
+    stderr; ``orchestrator/failures.py``), its traceback written to ``log_dir/<robot>.log``
+    when ``log_dir`` is given."""
     wall0 = time.perf_counter()
     run_id = run_id or f"inproc-{uuid.uuid4().hex[:8]}"
     keys = Keys(run_id)
@@ -67,8 +77,15 @@ def run_scenario(scenario: Scenario, duration_s: float | None = None, run_id: st
     sim: SimNode | None = None
     # secure mode's access policy, whatever run.secure says: a node that steps outside its
     # grants fails here at once, not as a stalled fleet behind a secure router
-    bus = MemoryBus(clock=lambda: sim.world.t, policy=AccessPolicy.for_scenario(keys, scenario))
-    agents = {n: AgentNode(RobotRuntime(scenario, n, keys), keys, bus.link(n), "lockstep") for n in scenario.robot_names}
+    bus = MemoryBus(clock=lambda: sim.world.t, policy=AccessPolicy.for_scenario(keys, scenario), validate=True)
+    bus.link().subscribe(keys.event("*"), FailureReporter(failures, log_dir, write_logs=True))
+
+    def runtime(name: str) -> RobotRuntime:
+        rt = RobotRuntime(scenario, name, keys)
+        rt.log_tracebacks = False  # the traceback goes to the event (and log_dir), one line to the terminal
+        return rt
+
+    agents = {n: AgentNode(runtime(n), keys, bus.link(n), "lockstep") for n in scenario.robot_names}
     started: list[AgentNode] = []
     faults = sorted([(round(t / dt), 0, n) for n, t in (kills or {}).items()]
                     + [(round(t / dt), 1, n) for n, t in (restarts or {}).items()])
@@ -79,7 +96,7 @@ def run_scenario(scenario: Scenario, duration_s: float | None = None, run_id: st
         while faults and faults[0][0] <= k:
             _, restart, n = faults.pop(0)
             if restart:
-                started.append(AgentNode(RobotRuntime(scenario, n, keys), keys, bus.link(n), "lockstep"))
+                started.append(AgentNode(runtime(n), keys, bus.link(n), "lockstep"))
                 started[-1].start()
             else:
                 agents[n].link.close()

@@ -70,6 +70,10 @@ ROBOT_KEYS = ROBOT_KEYS + ("deadline_misses",)
 # the path coordinate s (M1) of the true position at the run's end; null without a path
 # (docs/metrics.md, M4b)
 ROBOT_KEYS = ROBOT_KEYS + ("path_progress_m",)
+# controller steps that raised (or returned an invalid command), each stopping the robot for
+# that step, from the runtime's controller_error telemetry (docs/controllers.md, "When step()
+# fails"); the fleet's is their sum. solver_failures counts only the controller's own solver_ok
+ROBOT_KEYS = ROBOT_KEYS + ("controller_errors",)
 FLEET_KEYS = (
     "coordination_error_max_m",
     "coordination_error_rms_m",
@@ -101,6 +105,7 @@ FLEET_KEYS = (
     # a leader-following team (Sec. 5.3): who led from when, [[t, robot], ...], by the
     # succession rule on the simulator's loss events; null for other teams (docs/metrics.md, M3)
     "leaders",
+    "controller_errors",
 )
 METRIC_KEYS = {"robots": ROBOT_KEYS, "fleet": FLEET_KEYS}
 
@@ -258,6 +263,7 @@ def _robot_metrics(rt: RobotTrace, settle: float, model_kind: str, missed: int) 
     if model_kind == "omni" and len(rt.wheel_max):
         m["wheel_speed_max_mps"] = _f(rt.wheel_max.max())
     m["solver_failures"] = int(sum(1 for d in rt.telemetry if d.get("solver_ok") is False))
+    m["controller_errors"] = int(sum(1 for d in rt.telemetry if d.get("controller_error")))
     if len(rt.command) > 1 and len(rt.t) > 1:
         # integral of the squared applied command over the run: sum |u|^2 dt
         dts = np.diff(rt.t, append=rt.t[-1] + (rt.t[-1] - rt.t[-2]))
@@ -393,6 +399,8 @@ def compute_metrics(
             hit = c < 0
             collisions += int(hit[0]) + int(np.logical_and(hit[1:], ~hit[:-1]).sum())
     fleet["collisions"] = int(collisions)
+    errors = [m["controller_errors"] for m in robots.values() if m.get("controller_errors") is not None]
+    fleet["controller_errors"] = sum(errors) if errors else None
     fleet["messages_published"] = messages_published
     fleet["messages_recorded"] = messages_recorded
     fleet["messages_dropped_by_faults"] = int(

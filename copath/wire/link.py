@@ -12,6 +12,15 @@ subscribe to key expressions, declare liveliness tokens and watch them. Behind t
 
 Key expressions follow Zenoh's rules for the two wildcards copath uses: ``*`` is one
 chunk, ``**`` is any number of chunks (docs/performance.md, "One lockstep protocol").
+
+Receiver validation is the same on both: a Zenoh subscriber decodes with
+:func:`copath.wire.messages.unpack` and checks :func:`copath.wire.trust.check_origin`; a
+:class:`MemoryBus` made with ``validate=True`` (the in-process loop) runs the same schema
+checks on the record object (:func:`validate_record`, the record's ``from_dict`` over its
+``to_dict``, without packing) and the same origin check, once per published record. A
+refused record is counted in each subscriber link's ``reject_log`` and handed to the
+subscription's ``on_reject(key, error)``, never to its callback (docs/faults.md, "Rejected
+messages and the lockstep barrier").
 """
 
 from __future__ import annotations
@@ -19,14 +28,32 @@ from __future__ import annotations
 import logging
 from typing import TYPE_CHECKING, Any, Callable, Protocol, runtime_checkable
 
+from .messages import WireError
+from .trust import RejectLog, check_origin
+
 if TYPE_CHECKING:
     from .acl import AccessPolicy
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["Link", "MemoryBus", "MemoryLink", "key_matches", "Callback"]
+__all__ = ["Link", "MemoryBus", "MemoryLink", "key_matches", "Callback", "RejectCallback", "validate_record"]
 
 Callback = Callable[[str, Any], None]
+RejectCallback = Callable[[str, str], None]
+"""``on_reject(key, error)``: a record received on ``key`` was refused (the lockstep barrier
+counts a refused peer message as delivered-and-dropped, attributed by its key)."""
+
+
+def validate_record(key: str, rec: Any) -> Any:
+    """The receiver validation of a Zenoh subscriber on a record object: its schema
+    (``from_dict``: field types, finite numbers, peer payloads) and its origin
+    (:func:`copath.wire.trust.check_origin`); raises :class:`WireError`, returns the record."""
+    to_dict = getattr(rec, "to_dict", None)
+    if to_dict is None:
+        raise WireError(f"a {type(rec).__name__} is not a copath record")
+    type(rec).from_dict(to_dict())
+    check_origin(key, rec)
+    return rec
 
 
 @runtime_checkable
@@ -43,7 +70,7 @@ class Link(Protocol):
 
     def publish(self, key: str, record: Any) -> None: ...
 
-    def subscribe(self, key_expr: str, callback: Callback) -> None: ...
+    def subscribe(self, key_expr: str, callback: Callback, on_reject: RejectCallback | None = None) -> None: ...
 
     def declare_token(self, key: str) -> None: ...
 
@@ -80,15 +107,17 @@ class MemoryBus:
     """
 
     def __init__(self, clock: Callable[[], float] | None = None, record: bool = True,
-                 policy: "AccessPolicy | None" = None) -> None:
+                 policy: "AccessPolicy | None" = None, validate: bool = False) -> None:
         self.clock = clock or (lambda: 0.0)
         self.record = record
+        self.validate = validate
+        """Validate every delivered record as a Zenoh subscriber does (:func:`validate_record`)."""
         self.policy = policy
         """Secure mode's access policy (:mod:`copath.wire.acl`), enforced on every link
         opened with a user name: a node stepping outside its grants raises at once."""
         self.records: list[tuple[int, str, Any]] = []
-        self._subs: list[tuple[str, Callback, "MemoryLink"]] = []
-        self._route: dict[str, list[tuple[Callback, "MemoryLink"]]] = {}
+        self._subs: list[tuple[str, Callback, "MemoryLink", RejectCallback | None]] = []
+        self._route: dict[str, list[tuple[Callback, "MemoryLink", RejectCallback | None]]] = {}
         self._tokens: set[str] = set()
         self._watchers: list[tuple[str, Callable[[str, bool], None]]] = []
 
@@ -97,8 +126,9 @@ class MemoryBus:
         policy, like the process of that name behind a secure router."""
         return MemoryLink(self, user if self.policy is not None else None)
 
-    def _subscribe(self, expr: str, callback: Callback, link: "MemoryLink") -> None:
-        self._subs.append((expr, callback, link))
+    def _subscribe(self, expr: str, callback: Callback, link: "MemoryLink",
+                   on_reject: RejectCallback | None = None) -> None:
+        self._subs.append((expr, callback, link, on_reject))
         self._route.clear()
 
     def _unsubscribe(self, link: "MemoryLink") -> None:
@@ -110,12 +140,23 @@ class MemoryBus:
             self.records.append((int(round(self.clock() * 1e9)), key, record))
         route = self._route.get(key)
         if route is None:
-            route = self._route[key] = [(cb, ln) for expr, cb, ln in self._subs if key_matches(key, expr)]
-        for cb, ln in route:
+            route = self._route[key] = [(cb, ln, rj) for expr, cb, ln, rj in self._subs if key_matches(key, expr)]
+        if self.validate and route:  # once per record: every receiver would refuse it alike
+            try:
+                validate_record(key, record)
+            except WireError as exc:
+                for _, ln, rj in route:
+                    ln.reject_log.add(key, str(exc))
+                    if rj is not None:
+                        rj(key, str(exc))
+                return
+        for cb, ln, _ in route:
             try:
                 cb(key, record)
-            except Exception:  # like the Zenoh link: count, log, keep delivering
-                ln.rejects += 1
+            except WireError as exc:  # a receiver-side check in the callback
+                ln.reject_log.add(key, str(exc))
+            except Exception as exc:  # like the Zenoh link: count, log, keep delivering
+                ln.reject_log.add(key, f"callback failed: {exc!r}")
                 logger.exception("subscriber callback failed on %s", key)
 
     def _token(self, key: str, alive: bool) -> None:
@@ -141,9 +182,14 @@ class MemoryLink:
         self.user = user
         """Checked against ``bus.policy`` (None: unchecked)."""
         self.published = 0
-        self.rejects = 0
+        self.reject_log = RejectLog()
+        """What this node refused (shared with its robot runtime, as a Zenoh link's)."""
         self._tokens: list[str] = []
         self._closed = False
+
+    @property
+    def rejects(self) -> int:
+        return self.reject_log.total
 
     def __enter__(self) -> "MemoryLink":
         return self
@@ -157,10 +203,10 @@ class MemoryLink:
         self.published += 1
         self.bus._deliver(key, record)
 
-    def subscribe(self, key_expr: str, callback: Callback) -> None:
+    def subscribe(self, key_expr: str, callback: Callback, on_reject: RejectCallback | None = None) -> None:
         if self.user is not None:
             self.bus.policy.check(self.user, "subscribe", key_expr)
-        self.bus._subscribe(key_expr, callback, self)
+        self.bus._subscribe(key_expr, callback, self, on_reject)
 
     def declare_token(self, key: str) -> None:
         if self.user is not None:

@@ -225,8 +225,9 @@ class ZenohLink:
             pub.put(data)
             self.published += 1
 
-    def subscribe(self, key_expr: str, callback: Callback) -> None:
-        """Decode every sample on key_expr and call ``callback(key, record)``."""
+    def subscribe(self, key_expr: str, callback: Callback, on_reject: Callable[[str, str], None] | None = None) -> None:
+        """Decode every sample on key_expr and call ``callback(key, record)``; a sample that
+        fails validation is counted and handed to ``on_reject(key, error)`` instead."""
         self._check("subscribe", key_expr)
 
         def handler(sample: zenoh.Sample) -> None:
@@ -234,10 +235,21 @@ class ZenohLink:
             try:
                 rec = unpack(sample.payload.to_bytes())
                 check_origin(key, rec)
-                callback(key, rec)
             except WireError as exc:
                 self.reject_log.add(key, str(exc))
                 if self.reject_log.total <= 20 or self.reject_log.total % 1000 == 0:  # a flood stays readable
+                    logger.warning("rejected message on %s: %s (%d so far)", key, exc, self.reject_log.total)
+                if on_reject is not None:
+                    try:
+                        on_reject(key, str(exc))
+                    except Exception:
+                        logger.exception("reject callback failed on %s", key)
+                return
+            try:
+                callback(key, rec)
+            except WireError as exc:  # a receiver-side check in the callback
+                self.reject_log.add(key, str(exc))
+                if self.reject_log.total <= 20 or self.reject_log.total % 1000 == 0:
                     logger.warning("rejected message on %s: %s (%d so far)", key, exc, self.reject_log.total)
             except Exception as exc:  # never let a callback die silently in a loop
                 self.reject_log.add(key, f"callback failed: {exc!r}")

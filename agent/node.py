@@ -50,6 +50,7 @@ class _Refused(NamedTuple):
 
     sender: str
 
+
 __all__ = ["AgentNode", "main"]
 
 
@@ -222,7 +223,9 @@ class AgentNode:
     def _await_peers(self, obs: Obs) -> None:
         """Lockstep barrier: wait until every message the neighbours sent by the end of
         the previous tick has arrived (``Obs.expect``), so runs are deterministic. The
-        wait sleeps on a condition that each arriving peer message signals."""
+        wait sleeps on a condition that each arriving peer message signals. A message the
+        receiver refused has arrived too (delivered-and-dropped, :meth:`_on_peer_refused`):
+        it is not waited for (docs/faults.md, "Rejected messages and the lockstep barrier")."""
         self._drain_peers()
         if not self.rt.missing(obs.expect):
             return

@@ -8,7 +8,8 @@ import pytest
 from copath.scenario import load_scenario
 from copath.wire.keys import Keys
 from copath.wire.link import Link, MemoryBus, MemoryLink, key_matches
-from copath.wire.messages import Stats
+from copath.wire.messages import Obs, PeerEnvelope, Stats, WireError, unpack
+from copath.wire.trust import check_origin
 from copath.wire.session import ZenohLink
 from orchestrator.inprocess import run_scenario
 from tests.conftest import config
@@ -57,6 +58,31 @@ def test_a_failing_callback_is_counted_as_a_reject_and_delivery_goes_on():
     good.subscribe("k", lambda k, r: got.append(r))
     good.publish("k", 1)
     assert bad.rejects == 1 and got == [1]
+
+
+@pytest.mark.parametrize(("rec", "key"), [
+    (PeerEnvelope("r1", 1, 0.1, "mine", [0.0, 0.0], {"x": float("nan")}), "peer/r1/all"),
+    (PeerEnvelope("r1", 1, 0.1, "coord_state", [0.0, 0.0], {"s": 1.0, "sdot": 0.1}), "peer/r1/to/r2"),
+    (PeerEnvelope("r3", 1, 0.1, "mine", [0.0, 0.0], {"x": 1.0}), "peer/r1/all"),  # another's key
+    (Obs(1, 0.1, [0.0, 0.0, float("inf")]), "robot/r2/obs"),
+])
+def test_a_validating_bus_refuses_what_a_zenoh_subscriber_refuses_with_the_same_error(rec, key):
+    keys = Keys("v")
+    key = f"{keys.prefix}/{key}"
+    with pytest.raises(WireError) as wire:  # what a Zenoh subscriber does with the bytes
+        check_origin(key, unpack(rec.pack()))
+    bus = MemoryBus(validate=True)
+    a, b, pub = bus.link(), bus.link(), bus.link()
+    got, refused = [], []
+    a.subscribe(f"{keys.prefix}/**", lambda k, r: got.append(r))
+    b.subscribe(f"{keys.prefix}/**", lambda k, r: got.append(r), on_reject=lambda k, e: refused.append((k, e)))
+    pub.publish(key, rec)
+    assert got == [] and refused == [(key, str(wire.value))]
+    assert a.rejects == b.rejects == 1 and pub.rejects == 0
+    assert a.reject_log.last == (key, str(wire.value))
+    good = PeerEnvelope("r1", 2, 0.2, "mine", [0.0, 0.0], {"x": 1.0})
+    pub.publish(f"{keys.prefix}/peer/r1/all", good)
+    assert got == [good, good]
 
 
 def test_liveliness_has_history_and_a_closed_link_drops_its_tokens_and_subscriptions():

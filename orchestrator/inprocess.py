@@ -30,7 +30,7 @@ from copath.scenario import Scenario
 from copath.wire.acl import AccessPolicy
 from copath.wire.keys import Keys
 from copath.wire.link import MemoryBus
-from copath.wire.messages import End, Stats
+from copath.wire.messages import End, PeerEnvelope, Stats
 from sim.node import SimNode
 
 from .failures import FailureReporter
@@ -64,9 +64,10 @@ def run_scenario(scenario: Scenario, duration_s: float | None = None, run_id: st
     robot (a new controller) starts then and joins from the current world state, as
     ``restart`` does for a fleet (docs/faults.md).
 
-    Every record a node receives passes the receiver validation of a fleet's Zenoh link
-    (:func:`copath.wire.link.validate_record`: schema and origin); a rejected peer message
-    counts as delivered-and-dropped for the lockstep barrier, as over Zenoh. The first
+    Every peer message a node receives passes the receiver validation of a fleet's Zenoh
+    link (:func:`copath.wire.link.validate_record`: schema and origin; the other records
+    are copath's own); a rejected one counts as delivered-and-dropped for the lockstep
+    barrier, as over Zenoh. The first
     controller failure of each robot is printed as one line on ``failures`` (default
     stderr; ``orchestrator/failures.py``), its traceback written to ``log_dir/<robot>.log``
     when ``log_dir`` is given."""
@@ -77,7 +78,9 @@ def run_scenario(scenario: Scenario, duration_s: float | None = None, run_id: st
     sim: SimNode | None = None
     # secure mode's access policy, whatever run.secure says: a node that steps outside its
     # grants fails here at once, not as a stalled fleet behind a secure router
-    bus = MemoryBus(clock=lambda: sim.world.t, policy=AccessPolicy.for_scenario(keys, scenario), validate=True)
+    # receiver validation of what a controller decides (its peer messages), as over Zenoh
+    bus = MemoryBus(clock=lambda: sim.world.t, policy=AccessPolicy.for_scenario(keys, scenario),
+                    validate=(PeerEnvelope,))
     bus.link().subscribe(keys.event("*"), FailureReporter(failures, log_dir, write_logs=True))
 
     def runtime(name: str) -> RobotRuntime:

@@ -67,18 +67,17 @@ def run_scenario(scenario: Scenario, duration_s: float | None = None, run_id: st
     Every peer message a node receives passes the receiver validation of a fleet's Zenoh
     link (:func:`copath.wire.link.validate_record`: schema and origin; the other records
     are copath's own); a rejected one counts as delivered-and-dropped for the lockstep
-    barrier, as over Zenoh. The first
-    controller failure of each robot is printed as one line on ``failures`` (default
-    stderr; ``orchestrator/failures.py``), its traceback written to ``log_dir/<robot>.log``
-    when ``log_dir`` is given."""
+    barrier, as over Zenoh. The first controller failure of each robot is printed as one
+    line on ``failures`` (default stderr; ``orchestrator/failures.py``), its traceback
+    written to ``log_dir/<robot>.log`` when ``log_dir`` is given."""
     wall0 = time.perf_counter()
     run_id = run_id or f"inproc-{uuid.uuid4().hex[:8]}"
     keys = Keys(run_id)
     dt = scenario.run.dt
     sim: SimNode | None = None
     # secure mode's access policy, whatever run.secure says: a node that steps outside its
-    # grants fails here at once, not as a stalled fleet behind a secure router
-    # receiver validation of what a controller decides (its peer messages), as over Zenoh
+    # grants fails here at once, not as a stalled fleet behind a secure router; receiver
+    # validation of what a controller decides (its peer messages), as over Zenoh
     bus = MemoryBus(clock=lambda: sim.world.t, policy=AccessPolicy.for_scenario(keys, scenario),
                     validate=(PeerEnvelope,))
     bus.link().subscribe(keys.event("*"), FailureReporter(failures, log_dir, write_logs=True))

@@ -568,7 +568,7 @@ def parse_scenario(raw: Mapping[str, Any], base_dir: pathlib.Path | None = None,
                    "safety.gamma", safety.gamma,
                    f"must be <= 1/run.dt = {1.0 / run.dt:g} 1/s so a barrier cannot be overshot in one period")
     _cross_field(run, robots, errs)
-    world = errs.take(lambda: parse_world(raw.get("world"), tuple(order)), WorldConfig())
+    world = errs.take(lambda: parse_world(raw.get("world"), {r.name: r.pose for r in robots}), WorldConfig())
     if world.ros2:  # ROS 2 robots run on the wall clock and report their own poses (docs/ros2.md)
         errs.check(run is None or run.clock == "realtime", "run.clock", run.clock if run else None,
                    "world.backend = 'ros2' drives real robots on the wall clock: set run.clock = 'realtime'")

@@ -247,6 +247,9 @@ def run_fleet(scenario: Scenario, opts: RunOptions) -> RunOutcome:
                    "python": sys.version.split()[0]},
         "faults": fault_metadata(scenario),
     }
+    if scenario.world.ros2:  # the world records are what the robots reported (docs/ros2.md)
+        metadata["world"] = {"backend": "ros2", "truth": "poses reported by the robots, not ground truth",
+                             "ros_domain_id": os.environ.get("ROS_DOMAIN_ID", "0")}
     live = tail = None
     if opts.live_port is not None:  # before anything else opens: a busy port fails the run at once
         from .live import LiveViz, LogTail
@@ -323,7 +326,8 @@ def run_fleet(scenario: Scenario, opts: RunOptions) -> RunOutcome:
         return child or _spawn(name, [sys.executable, "-m", "agent", *argv], log, out / "logs")
 
     try:
-        children.append(_spawn("sim", [sys.executable, "-m", "sim", *common, *_auth("sim"), "--start-timeout",
+        world = "sim.ros2_bridge" if scenario.world.ros2 else "sim"  # ROS 2 robots: the bridge (docs/ros2.md)
+        children.append(_spawn("sim", [sys.executable, "-m", world, *common, *_auth("sim"), "--start-timeout",
                                        str(opts.start_timeout_s)], out / "logs" / "sim.log", out / "logs"))
         for name in scenario.robot_names:
             if name in opts.external:
@@ -424,6 +428,8 @@ def run_fleet(scenario: Scenario, opts: RunOptions) -> RunOutcome:
         if prev_term is not None:
             signal.signal(signal.SIGTERM, prev_term)
         progress.done()
+        if not ok and scenario.world.ros2 and children and children[0].proc.poll() is None:
+            os.killpg(children[0].proc.pid, signal.SIGTERM)  # the bridge stops every robot now (docs/ros2.md)
         if ok:  # closing accounts may still be in flight through the router
             expected = {"sim", *scenario.robot_names}
             deadline, hard, seen = time.monotonic() + 3.0, time.monotonic() + 15.0, recorder.count

@@ -12,7 +12,8 @@
     pose_type = "pose_stamped"    # "odometry" (nav_msgs/Odometry) | "pose_stamped" (geometry_msgs/PoseStamped)
     cmd_topic = "/r1/cmd_vel"     # geometry_msgs/Twist; default /<robot>/cmd_vel
     frame = "map"                 # the header.frame_id poses must carry ("": any)
-    origin = [0.0, 0.0, 0.0]      # pose of that frame in the scenario's frame [m, m, rad]
+    origin = "start"              # pose of that frame in the scenario's frame: [x, y, theta] or
+                                  # "start" (the robot's scenario pose; default for odometry)
 
 docs/ros2.md explains each key, the QoS and what the run's log records.
 """
@@ -50,8 +51,10 @@ class RobotIO:
     """The ``header.frame_id`` every pose must carry; others are rejected and counted ("": any)."""
     origin: tuple[float, float, float] = (0.0, 0.0, 0.0)
     """Pose of the pose source's frame in the scenario's frame [m, m, rad]: a reported pose
-    p becomes origin (+) p. A robot whose odometry starts at zero where the scenario puts it
-    at (x, y, theta) has origin = [x, y, theta]."""
+    p becomes origin (+) p. ``"start"`` in the scenario (the default for odometry) is the
+    robot's start pose: wheel odometry starts at zero where the robot was placed, and the
+    robot is placed where the scenario starts it. Motion capture (``pose_stamped``) reports
+    in a fixed frame: its default origin is zero."""
 
 
 @dataclass(frozen=True)
@@ -83,7 +86,7 @@ def _topic(value: Any, key: str) -> str:
     return value if value.startswith("/") else "/" + value
 
 
-def _robot_io(name: str, tab: Any, default_type: str) -> RobotIO:
+def _robot_io(name: str, tab: Any, default_type: str, start) -> RobotIO:
     where = f"world.robots.{name}"
     require(isinstance(tab, dict), where, tab, f"expected a table with keys {', '.join(_ROBOT_KEYS)}")
     for k in tab:
@@ -94,14 +97,20 @@ def _robot_io(name: str, tab: Any, default_type: str) -> RobotIO:
     frame = tab.get("frame", "")
     require(isinstance(frame, str) and _FRAME_RE.fullmatch(frame) is not None, f"{where}.frame", frame,
             "expected a frame id such as 'map' or 'r1/odom' ('' accepts any)")
-    origin = as_float_tuple(tab.get("origin", [0.0, 0.0, 0.0]), f"{where}.origin", 3)
+    origin = tab.get("origin", "start" if kind == "odometry" else [0.0, 0.0, 0.0])
+    if origin == "start":
+        origin = tuple(float(v) for v in start)
+    elif isinstance(origin, str):
+        raise ConfigError(f"{where}.origin = {origin!r} is not allowed; expected [x, y, theta] or 'start'")
+    origin = as_float_tuple(origin, f"{where}.origin", 3)
     require(all(math.isfinite(v) for v in origin), f"{where}.origin", list(origin), "must be finite numbers")
     return RobotIO(_topic(tab.get("pose_topic", pose_default), f"{where}.pose_topic"), kind,
                    _topic(tab.get("cmd_topic", f"/{name}/cmd_vel"), f"{where}.cmd_topic"), frame, origin)
 
 
-def parse_world(raw: Any, robot_names: tuple[str, ...]) -> WorldConfig:
-    """Validate ``[world]`` for a scenario whose robots are ``robot_names``."""
+def parse_world(raw: Any, starts: Mapping[str, tuple[float, float, float]]) -> WorldConfig:
+    """Validate ``[world]`` for a scenario whose robots start at ``starts`` (name -> pose)."""
+    robot_names = tuple(starts)
     if raw is None:
         return WorldConfig()
     require(isinstance(raw, dict), "world", raw, f"expected a table with keys {', '.join(_WORLD_KEYS)}")
@@ -115,7 +124,7 @@ def parse_world(raw: Any, robot_names: tuple[str, ...]) -> WorldConfig:
         if name not in robot_names:
             raise ConfigError(f"world.robots.{name} = {per[name]!r} is not allowed; robots of this scenario: "
                               f"{', '.join(robot_names)}")
-    robots = {n: _robot_io(n, per.get(n, {}), default_type) for n in robot_names}
+    robots = {n: _robot_io(n, per.get(n, {}), default_type, starts[n]) for n in robot_names}
     topics = [t for io in robots.values() for t in (io.pose_topic, io.cmd_topic)]
     dup = sorted({t for t in topics if topics.count(t) > 1})
     require(not dup, "world.robots", dup, "each robot needs its own pose and command topics")

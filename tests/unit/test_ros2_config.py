@@ -30,6 +30,7 @@ def test_ros2_world_defaults_and_per_robot_topics():
                                        "r3": {"cmd_topic": "robot3/cmd"}}})
     io = s.world.robots
     assert io["r1"].pose_topic == "/r1/odom" and io["r1"].pose_type == "odometry" and io["r1"].cmd_topic == "/r1/cmd_vel"
+    assert io["r1"].origin == s.robot("r1").pose  # odometry starts at zero where the robot starts
     assert io["r2"].pose_topic == "/r2/pose" and io["r2"].frame == "map" and io["r2"].origin == (1.0, 2.0, 0.5)
     assert io["r3"].cmd_topic == "/robot3/cmd"
 
@@ -49,11 +50,12 @@ def test_lockstep_is_refused_with_one_line():
     ({"backend": "ros2", "robots": {"r1": {"cmd_topic": "/r2/cmd_vel"}}}, "world.robots"),
     ({"backend": "ros2", "robots": {"r1": {"speed": 1}}}, "world.robots.r1.speed"),
     ({"backend": "ros2", "start_timeout_s": 0}, "world.start_timeout_s"),
+    ({"backend": "ros2", "robots": {"r1": {"origin": "here"}}}, "world.robots.r1.origin"),
     ({"backend": "ros2", "colour": "red"}, "world.colour"),
 ])
 def test_bad_world_names_the_key(world, key):
     with pytest.raises(ConfigError) as exc:
-        parse_world(world, ("r1", "r2"))
+        parse_world(world, {"r1": (0.0, 0.0, 0.0), "r2": (1.0, 0.0, 0.0)})
     assert str(exc.value).startswith(f"{key} = ")
 
 

@@ -508,6 +508,23 @@ def _cmd_plot(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_export(args: argparse.Namespace) -> int:
+    """``copath export --ros2 RUN.mcap OUT.mcap``: the run as a ROS 2 bag (orchestrator/export.py)."""
+    from .export import export_ros2
+
+    if not pathlib.Path(args.log).is_file():
+        print(f"copath export: {args.log} = no such run log", file=sys.stderr)
+        return EXIT_INPUT
+    try:
+        res = export_ros2(args.log, args.out)
+    except RuntimeError as exc:  # the ros2 extra is missing: one line saying what to install
+        print(f"copath export: {exc}", file=sys.stderr)
+        return EXIT_INPUT
+    print(f"{args.out}: {res['messages']} messages in {res['wall_s']:.2f} s ({res['rate_msg_per_s']} msg/s); "
+          + ", ".join(f"{t} {n}" for t, n in res["topics"].items()))
+    return 0
+
+
 def _cmd_scenarios(args: argparse.Namespace) -> int:
     """The bundled scenarios: file stem, experiment id, robots and title."""
     rows = []
@@ -640,6 +657,12 @@ def build_parser() -> argparse.ArgumentParser:
     pl.add_argument("log")
     pl.add_argument("--out", help="output directory [the log's directory]")
     pl.add_argument("--animate", action="store_true", help="also write an animation of the run")
+    ex = sub.add_parser("export", help="write a run log in another format (--ros2: a ROS 2 bag; docs/ros2.md)",
+                        parents=[common])
+    ex.add_argument("--ros2", action="store_true", required=True,
+                    help="a ROS 2 bag: MCAP, cdr encoding, ros2msg schemas (odom, tf, plans, reference paths)")
+    ex.add_argument("log", metavar="RUN.mcap")
+    ex.add_argument("out", metavar="OUT.mcap")
     sc = sub.add_parser("scenarios", help="list the bundled scenarios", parents=[common])
     sc.add_argument("--json", action="store_true")
     v = sub.add_parser("validate", help="check scenario files (controller parameters included) and print "
@@ -690,7 +713,7 @@ def _main(argv: Sequence[str] | None = None) -> int:
     logging.getLogger().setLevel(level)
     if bench:
         return _cmd_bench(args, rest)
-    handlers = {"plot": _cmd_plot, "run": _cmd_run, "sweep": _cmd_sweep, "envelope": _cmd_envelope, "info": _cmd_info, "metrics": _cmd_metrics, "replay": _cmd_replay, "scenarios": _cmd_scenarios,
+    handlers = {"plot": _cmd_plot, "run": _cmd_run, "sweep": _cmd_sweep, "envelope": _cmd_envelope, "info": _cmd_info, "metrics": _cmd_metrics, "replay": _cmd_replay, "scenarios": _cmd_scenarios, "export": _cmd_export,
                 "validate": _cmd_validate, "controllers": _cmd_controllers}
     return handlers[args.command](args)
 

@@ -154,13 +154,14 @@ def main(argv: list[str] | None = None) -> int:
     dt = 1.0 / args.physics_hz
     odom_every = max(1, round(args.physics_hz / args.odom_hz))
     i = 0
-    next_t = time.monotonic()
+    next_t = last = time.monotonic()
     try:
         while not stop.is_set():
-            now_wall = time.time()
+            now_wall, now = time.time(), time.monotonic()
+            step, last = min(0.1, now - last), now  # the time that really passed (a busy machine is late)
             with lock:
                 for r in robots.values():
-                    r.step(dt, args.watchdog_s)
+                    r.step(step, args.watchdog_s)
                     if i % odom_every:
                         continue
                     if r.name in stops and r.first_cmd_at is not None and time.monotonic() - r.first_cmd_at > stops[r.name]:

@@ -258,7 +258,8 @@ def _world() -> str:
     world.insert(2, FieldInfo("pose_type", "string", '"odometry"', "Default pose source of every robot: "
                               "`odometry` (nav_msgs/Odometry) or `pose_stamped` (geometry_msgs/PoseStamped)."))
     defaults = {"pose_topic": "/<robot>/odom (odometry) or /<robot>/pose (pose_stamped)",
-                "pose_type": "[world] pose_type", "cmd_topic": "/<robot>/cmd_vel"}
+                "pose_type": "[world] pose_type", "cmd_topic": "/<robot>/cmd_vel",
+                "origin": '"start" (odometry), [0.0, 0.0, 0.0] (pose_stamped)'}
     io = [dataclasses.replace(f, default=defaults.get(f.name, f.default)) for f in fields_of(RobotIO)]
     return _table(world) + "\n\nEach `[world.robots.NAME]` (every key optional):\n\n" + _table(io)
 

@@ -156,3 +156,14 @@ def test_every_metrics_key_a_run_emits_is_documented():
     assert doc["fleet"] <= set(FLEET_KEYS) | set(m["fleet"]) | roles_extra
     assert doc["top"] <= set(m)
     assert set(ROBOT_KEYS) <= doc["robots"] and set(FLEET_KEYS) <= doc["fleet"]
+
+
+def test_the_example_of_the_scenario_reference_is_valid(tmp_path):
+    from orchestrator.validate import validate_file
+
+    text = (DOCS / "scenarios.md").read_text()
+    example = re.search(r"```toml\n(.*?)```", text, re.S).group(1)
+    f = tmp_path / "example.toml"
+    f.write_text(example)
+    s = validate_file(f)
+    assert s.robot("r2").neighbours == ("r1",) and s.robot("r1").params["s_d"] == 0.75

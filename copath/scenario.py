@@ -166,7 +166,8 @@ class Partition:
     """Named links cut over [start_s, end_s) (both directions of each link)."""
 
     links: tuple[tuple[str, str], ...]
-    """Pairs of robots ``[["r1", "r2"], ...]``; each must be an edge of the communication graph."""
+    """Pairs of robots ``[["r1", "r2"], ...]``; each must be an edge of the fixed communication
+    graph (``robots.neighbours``) unless ``network.range_m > 0``."""
     start_s: float = 0.0
     """Start of the cut [s]."""
     end_s: float = math.inf
@@ -603,7 +604,7 @@ def parse_scenario(raw: Mapping[str, Any], base_dir: pathlib.Path | None = None,
     return scenario
 
 
-_HEADER_RE = re.compile(r"^\s*(\[\[?)\s*([^\]]+?)\s*\]\]?")
+_HEADER_RE = re.compile(r"^\s*(\[\[?)\s*([A-Za-z0-9_\-\"][A-Za-z0-9_\-\". ]*?)\s*\]\]?\s*(?:#.*)?$")
 _KEY_RE = re.compile(r"^\s*([A-Za-z0-9_\-\".]+)\s*=")
 _INLINE_KEY_RE = re.compile(r"[{,]\s*([A-Za-z0-9_\-]+)\s*=")
 _ERROR_KEY_RE = re.compile(r"^([A-Za-z_][\w\-]*(?:\[\d+\])?(?:\.[\w\-]+(?:\[\d+\])?)*)(?: = |: )")
@@ -625,8 +626,12 @@ def key_lines(text: str) -> dict[str, int]:
     def put(key: str, line: int) -> None:
         out.setdefault(key, line)
 
+    depth = 0  # open brackets of a multi-line array value
     for n, line in enumerate(text.splitlines(), start=1):
         code = line.split("#", 1)[0] if '"' not in line.split("#", 1)[0] else line
+        if depth > 0:  # inside a value that spans lines: no keys or headers here
+            depth += code.count("[") - code.count("]")
+            continue
         m = _HEADER_RE.match(code)
         if m:
             parts = [s.strip().strip('"') for s in m.group(2).split(".")]
@@ -638,14 +643,20 @@ def key_lines(text: str) -> dict[str, int]:
                 # [robots.controller] after [[robots]] belongs to the last robots entry
                 head = parts[0]
                 table = ([f"{head}[{counts[head]}]"] + parts[1:]) if head in counts else parts
+            for j in range(1, len(parts) + 1):  # the implicit super-tables, and the array itself
+                put(".".join(parts[:j]), n)
             put(".".join(table), n)
             continue
         m = _KEY_RE.match(code)
         if not m:
             continue
-        key = ".".join([*table, *(s.strip().strip('"') for s in m.group(1).split("."))])
+        dotted = [s.strip().strip('"') for s in m.group(1).split(".")]
+        for j in range(1, len(dotted)):  # a dotted key defines its parents too
+            put(".".join([*table, *dotted[:j]]), n)
+        key = ".".join([*table, *dotted])
         put(key, n)
         rest = code[m.end():]
+        depth = max(0, rest.count("[") - rest.count("]"))
         if rest.lstrip().startswith("{"):
             for k in _INLINE_KEY_RE.findall(rest):
                 put(f"{key}.{k}", n)

@@ -70,6 +70,10 @@ class FieldInfo:
     """Its attribute docstring, on one line."""
 
 
+def _plural(name: str) -> str:
+    return name + "s" if name in ("number", "integer", "string", "table") else name
+
+
 def type_name(tp: Any) -> str:
     """A type annotation in TOML words."""
     origin = typing.get_origin(tp)
@@ -89,15 +93,15 @@ def type_name(tp: Any) -> str:
         return " or ".join(parts) + (" (optional)" if type(None) in args else "")
     if origin is tuple:
         if len(args) == 2 and args[1] is Ellipsis:
-            return f"list of {type_name(args[0])}"
+            return f"list of {_plural(type_name(args[0]))}"
         if args and all(a == args[0] for a in args):
             return f"list of {len(args)} {type_name(args[0])}s"
         return "list"
     if origin in (list, typing.List):
-        return f"list of {type_name(args[0])}" if args else "list"
+        return f"list of {_plural(type_name(args[0]))}" if args else "list"
     if origin in (dict, typing.Dict, typing.Mapping) or tp in (dict, typing.Mapping) or (
             origin is not None and getattr(origin, "__name__", "") == "Mapping"):
-        if len(args) == 2:
+        if len(args) == 2 and args[1] is not typing.Any:
             return f"table of {type_name(args[1])}"
         return "table"
     if dataclasses.is_dataclass(tp):

@@ -175,3 +175,12 @@ def test_key_lines_follow_sub_tables_of_the_last_array_entry():
     text = '[[robots]]\nname = "r1"\n[robots.controller]\ns_d = 1.2\n[[robots]]\nname = "r2"\n[robots.controller]\ns_d = 0.6\n'
     lines = key_lines(text)
     assert lines["robots.r1.controller.s_d"] == 4 and lines["robots.r2.controller.s_d"] == 8
+
+
+def test_key_lines_skip_the_rows_of_a_multi_line_array():
+    from copath.scenario import key_lines
+
+    text = '[paths.s]\ntype = "spline"\nwaypoints = [\n  [0.0, 0.0],\n  [1.0, 1.0],\n  [2.0, 0.0],\n]\nclosed = true\n[run]\ndt = 0.1\n'
+    lines = key_lines(text)
+    assert lines["paths.s.waypoints"] == 3 and lines["paths.s.closed"] == 8 and lines["run.dt"] == 10
+    assert not any(k.startswith("0") for k in lines)

@@ -9,10 +9,10 @@ feeds it directly, so both run the exact same logic:
    dropped (Def. 10: the sender's position travels in the envelope, no oracle);
 3. the controller steps; an exception inside it (or an invalid command) is counted and
    the robot stops for that step (it never kills the process); the first one per robot is
-   logged with its traceback and published as a ``controller_error`` event; a robot that has lost every other
-   robot (cut off: its own radio most likely went quiet) commands zero until it hears one
-   again, unless its controller handles that itself (``handles_cut_off``; docs/faults.md,
-   "Gone quiet");
+   logged with its traceback and published as a ``controller_error`` event; a robot that
+   has lost every other robot (cut off: its own radio most likely went quiet) commands
+   zero until it hears one again, unless its controller handles that itself
+   (``handles_cut_off``; docs/faults.md, "Gone quiet");
 4. with ``[safety]`` on, the command passes the decentralised safety filter
    (``copath.safety``), fed with the sender positions of every peer envelope the robot
    overhears (:attr:`RobotRuntime.overhear_subscriptions`, its own fault streams and the

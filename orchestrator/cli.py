@@ -232,6 +232,16 @@ def _cmd_run(args: argparse.Namespace) -> int:
                                   f"{', '.join(scenario.robot_names)}")
         if args.inprocess and args.external:
             raise ConfigError("--external is not allowed with --inprocess; external robots join a fleet run")
+        if args.ros2:  # a live ROS 2 view: ROS 2 installed, a fleet run, robots not already on ROS 2
+            from copath.ros2 import missing
+
+            if (m := missing("--ros2")) is not None:
+                raise ConfigError(m)
+            if args.inprocess:
+                raise ConfigError("--ros2 is not allowed with --inprocess; the ROS 2 view mirrors fleet runs")
+            if scenario.world.ros2:
+                raise ConfigError("--ros2 is not allowed with world.backend = 'ros2'; the robots publish their "
+                                  "own /<robot>/odom (export the run with copath export --ros2)")
         if args.inprocess and args.live is not None:
             raise ConfigError(f"--live = {args.live} is not allowed with --inprocess; live views are served "
                               "by fleet runs and by copath replay --live")
@@ -261,7 +271,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
         outcome = run_fleet(scenario, RunOptions(out_dir=out, run_id=run_id, progress=not args.quiet,
                                                  wall_timeout_s=args.wall_timeout, connect=tuple(args.connect),
                                                  listen=tuple(args.listen), live_port=args.live,
-                                                 external=tuple(args.external),
+                                                 external=tuple(args.external), ros2_view=args.ros2,
                                                  start_timeout_s=600.0 if args.external else 120.0))
     except ValueError as exc:  # LivePortError: nothing was started
         if type(exc).__name__ != "LivePortError":
@@ -599,6 +609,8 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--secure", action=argparse.BooleanOptionalAction, default=None,
                    help="per-run credentials and access control on the run's router (run.secure, on by "
                         "default; --no-secure for robots behind a router of their own; docs/security.md)")
+    r.add_argument("--ros2", action="store_true",
+                   help="mirror the run into ROS 2 live: /<robot>/odom, /<robot>/plan, /paths/* (docs/ros2.md)")
     r.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     sw = sub.add_parser("sweep", help="run the product of settings and seeds; one table and plots", parents=[common])
     sw.add_argument("config", help="scenario file, bundled file stem or experiment id")

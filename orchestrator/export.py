@@ -38,7 +38,7 @@ from copath.wire.messages import PeerEnvelope, Telemetry, Truth
 
 from .mcaplog import read_log
 
-__all__ = ["export_ros2", "MAP_FRAME"]
+__all__ = ["export_ros2", "RosTopics", "MAP_FRAME"]
 
 MAP_FRAME = "map"
 TYPES = ("nav_msgs/msg/Odometry", "tf2_msgs/msg/TFMessage", "nav_msgs/msg/Path")
@@ -70,16 +70,80 @@ def _path_msg(stamp: dict, xy: np.ndarray) -> dict[str, Any]:
     return {"header": header, "poses": [{"header": header, "pose": _pose(p[0], p[1], a)} for p, a in zip(xy, th)]}
 
 
+class RosTopics:
+    """A run's records as ROS 2 messages (plain dicts, by type name): the one mapping that
+    ``copath export --ros2`` writes to a bag and ``copath run --ros2`` publishes live
+    (orchestrator/ros2_view.py). Times are run times [s]; ``base`` is added to stamps."""
+
+    def __init__(self, scenario, keys: Keys, base: float = 0.0) -> None:
+        from .viz import VizBuilder  # noqa: PLC0415  (its plan reading: one definition of a broadcast horizon)
+
+        self.keys = keys
+        self.base = base
+        self.scenario = scenario
+        self.viz = VizBuilder(scenario, keys)
+        self.plans: dict[str, np.ndarray] = {}
+        self.version: dict[str, int] = {}  # per robot: plans received / plans written
+        self.sent_plan: dict[str, int] = {}
+
+    def reference_paths(self) -> list[tuple[str, str, dict, float]]:
+        out = []
+        for name, path in self.scenario.paths.items():
+            s = np.linspace(0.0, path.length, max(50, int(path.length / 0.05)))
+            out.append((f"/paths/{name}", "nav_msgs/msg/Path", _path_msg(_stamp(self.base), path.pos(s)), 0.0))
+        return out
+
+    def feed(self, key: str, rec: Any) -> list[tuple[str, str, dict, float]]:
+        """(topic, type, message, run time) of the messages ``rec`` gives rise to."""
+        if isinstance(rec, PeerEnvelope):
+            before = self.viz.plans.get(rec.sender)
+            self.viz.feed(key, rec)
+            if self.viz.plans.get(rec.sender) is not before:
+                self.plans[rec.sender] = self.viz.plans[rec.sender]
+                self.version[rec.sender] = self.version.get(rec.sender, 0) + 1
+        elif isinstance(rec, Telemetry):
+            plan = rec.data.get("plan")
+            if isinstance(plan, list) and plan and all(isinstance(q, list) and len(q) >= 2 for q in plan):
+                n = self.keys.relative(key).split("/")[1]
+                self.plans[n] = np.asarray([q[:2] for q in plan], dtype=float)
+                self.version[n] = self.version.get(n, 0) + 1
+        elif isinstance(rec, Truth):
+            return self._tick(rec)
+        return []
+
+    def _tick(self, rec: Truth) -> list[tuple[str, str, dict, float]]:
+        out = []
+        stamp = _stamp(self.base + rec.t)
+        tfs = []
+        for n, p, u in zip(rec.names, rec.poses, rec.commands):
+            body = (u[0], u[1], u[2]) if len(u) == 3 else (u[0], 0.0, u[1])
+            child = f"{n}/base_link"
+            out.append((f"/{n}/odom", "nav_msgs/msg/Odometry", {
+                "header": {"stamp": stamp, "frame_id": MAP_FRAME}, "child_frame_id": child,
+                "pose": {"pose": _pose(*p[:3]), "covariance": [0.0] * 36},
+                "twist": {"twist": {"linear": {"x": float(body[0]), "y": float(body[1]), "z": 0.0},
+                                    "angular": {"x": 0.0, "y": 0.0, "z": float(body[2])}},
+                          "covariance": [0.0] * 36}}, rec.t))
+            q = quaternion_from_yaw(p[2])
+            tfs.append({"header": {"stamp": stamp, "frame_id": MAP_FRAME}, "child_frame_id": child,
+                        "transform": {"translation": {"x": float(p[0]), "y": float(p[1]), "z": 0.0},
+                                      "rotation": {"x": q[0], "y": q[1], "z": q[2], "w": q[3]}}})
+            plan = self.plans.get(n)
+            if plan is not None and self.sent_plan.get(n) != self.version.get(n) and len(plan) > 1:
+                out.append((f"/{n}/plan", "nav_msgs/msg/Path", _path_msg(stamp, plan), rec.t))
+                self.sent_plan[n] = self.version[n]
+        out.append(("/tf", "tf2_msgs/msg/TFMessage", {"transforms": tfs}, rec.t))
+        return out
+
+
 def export_ros2(run_mcap: str | pathlib.Path, out_mcap: str | pathlib.Path) -> dict[str, Any]:
     """Write the run ``run_mcap`` as a ROS 2 bag ``out_mcap``; returns messages per topic,
-    the total and the rate (messages per second of export)."""
+    the total and the rate (messages per second of export, reading the run included)."""
     problem = _missing_libraries()
     if problem:
         raise RuntimeError(problem)
     from mcap_ros2.writer import Writer  # noqa: PLC0415
     from rosbags.typesys import Stores, get_typestore  # noqa: PLC0415
-
-    from .viz import VizBuilder  # noqa: PLC0415  (its plan reading: one definition of a broadcast horizon)
 
     wall0 = time.perf_counter()
     log = read_log(run_mcap)
@@ -89,58 +153,22 @@ def export_ros2(run_mcap: str | pathlib.Path, out_mcap: str | pathlib.Path) -> d
     keys = Keys(meta["copath"]["run_id"])
     store = get_typestore(Stores.ROS2_KILTED)
     counts: dict[str, int] = {}
-    viz = VizBuilder(scenario, keys)
     t0_ns = min((t for t, _, _ in log.records), default=0)
+    topics = RosTopics(scenario, keys, base=t0_ns * 1e-9)
     with open(out_mcap, "wb") as fh:
         writer = Writer(fh)
         schemas = {name: writer.register_msgdef(name, store.generate_msgdef(name, ros_version=2)[0]) for name in TYPES}
 
-        def put(topic: str, typ: str, msg: dict, t: float) -> None:
-            ns = t0_ns + int(round(t * 1e9))
-            writer.write_message(topic, schemas[typ], msg, log_time=ns, publish_time=ns,
-                                 sequence=counts.get(topic, 0))
-            counts[topic] = counts.get(topic, 0) + 1
+        def put(msgs) -> None:
+            for topic, typ, msg, t in msgs:
+                ns = t0_ns + int(round(t * 1e9))
+                writer.write_message(topic, schemas[typ], msg, log_time=ns, publish_time=ns,
+                                     sequence=counts.get(topic, 0))
+                counts[topic] = counts.get(topic, 0) + 1
 
-        base = t0_ns * 1e-9
-        for name, path in scenario.paths.items():
-            s = np.linspace(0.0, path.length, max(50, int(path.length / 0.05)))
-            put(f"/paths/{name}", "nav_msgs/msg/Path", _path_msg(_stamp(base), path.pos(s)), 0.0)
-        plans: dict[str, np.ndarray] = {}
-        version: dict[str, int] = {}  # per robot: plans received / plans written
-        sent_plan: dict[str, int] = {}
+        put(topics.reference_paths())
         for _, key, rec in log.records:
-            if isinstance(rec, PeerEnvelope):
-                viz.feed(key, rec)
-                if viz.plans.get(rec.sender) is not plans.get(rec.sender) and rec.sender in viz.plans:
-                    plans[rec.sender] = viz.plans[rec.sender]
-                    version[rec.sender] = version.get(rec.sender, 0) + 1
-            elif isinstance(rec, Telemetry):
-                plan = rec.data.get("plan")
-                if isinstance(plan, list) and plan and all(isinstance(q, list) and len(q) >= 2 for q in plan):
-                    n = keys.relative(key).split("/")[1]
-                    plans[n] = np.asarray([q[:2] for q in plan], dtype=float)
-                    version[n] = version.get(n, 0) + 1
-            elif isinstance(rec, Truth):
-                stamp = _stamp(base + rec.t)
-                tfs = []
-                for n, p, u in zip(rec.names, rec.poses, rec.commands):
-                    body = (u[0], u[1], u[2]) if len(u) == 3 else (u[0], 0.0, u[1])
-                    child = f"{n}/base_link"
-                    put(f"/{n}/odom", "nav_msgs/msg/Odometry", {
-                        "header": {"stamp": stamp, "frame_id": MAP_FRAME}, "child_frame_id": child,
-                        "pose": {"pose": _pose(*p[:3]), "covariance": [0.0] * 36},
-                        "twist": {"twist": {"linear": {"x": float(body[0]), "y": float(body[1]), "z": 0.0},
-                                            "angular": {"x": 0.0, "y": 0.0, "z": float(body[2])}},
-                                  "covariance": [0.0] * 36}}, rec.t)
-                    q = quaternion_from_yaw(p[2])
-                    tfs.append({"header": {"stamp": stamp, "frame_id": MAP_FRAME}, "child_frame_id": child,
-                                "transform": {"translation": {"x": float(p[0]), "y": float(p[1]), "z": 0.0},
-                                              "rotation": {"x": q[0], "y": q[1], "z": q[2], "w": q[3]}}})
-                    plan = plans.get(n)
-                    if plan is not None and sent_plan.get(n) != version.get(n) and len(plan) > 1:
-                        put(f"/{n}/plan", "nav_msgs/msg/Path", _path_msg(stamp, plan), rec.t)
-                        sent_plan[n] = version[n]
-                put("/tf", "tf2_msgs/msg/TFMessage", {"transforms": tfs}, rec.t)
+            put(topics.feed(key, rec))
         writer.finish()
     wall = time.perf_counter() - wall0
     total = sum(counts.values())

@@ -70,6 +70,8 @@ class RunOptions:
     secure: bool | None = None
     """Per-run credentials and access control on the router (orchestrator/security.py);
     None: the scenario's ``run.secure``."""
+    ros2_view: bool = False
+    """Mirror the run into ROS 2 live (``copath run --ros2``, orchestrator/ros2_view.py)."""
     fork_server: bool = field(default_factory=lambda: os.environ.get("COPATH_FORK_SERVER", "1") != "0")
     """Start the agents by forking a pre-imported launcher (``agent/zygote.py``) instead of
     one ``python -m agent`` each: the imports are paid once (docs/performance.md, P10).
@@ -259,6 +261,11 @@ def run_fleet(scenario: Scenario, opts: RunOptions) -> RunOutcome:
         live.advertise(TOPICS)
         tail = LogTail(out / "logs", live).start()  # process log lines, live
         logger.info("live views on %s (Foxglove: Open connection -> Foxglove WebSocket)", live.url)
+    mirror = None
+    if opts.ros2_view:  # RViz2 and ros2 topic echo see the run (docs/ros2.md); before the router opens
+        from .ros2_view import Ros2Mirror
+
+        mirror = Ros2Mirror(scenario, keys)
     secure = scenario.run.secure if opts.secure is None else bool(opts.secure)
     metadata["copath"]["secure"] = str(secure)
     creds, router_extra = None, ()
@@ -278,6 +285,8 @@ def run_fleet(scenario: Scenario, opts: RunOptions) -> RunOutcome:
                                           extra=router_extra))
     recorder = Recorder(out / "run.mcap", keys, metadata, scenario, live=live)
     router.subscribe_raw(keys.all, recorder.write)
+    if mirror is not None:
+        router.subscribe_raw(keys.all, mirror.write)
     # the first controller failure of each robot, one line here (its traceback is in its log)
     router.subscribe(keys.event("*"), FailureReporter(log_dir=out / "logs"))
     common = ["--run-id", opts.run_id, "--config", str(scen_path.resolve())]  # children run in DIR/logs
@@ -444,6 +453,8 @@ def run_fleet(scenario: Scenario, opts: RunOptions) -> RunOutcome:
         if zygote is not None:
             zygote.close()
         router.close()
+        if mirror is not None:
+            mirror.close()
         recorder.add_process_logs(out / "logs")
         recorder.finish({"outcome": {"ok": str(ok), "reason": reason}})
         if live is not None:

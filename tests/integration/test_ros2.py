@@ -164,3 +164,59 @@ def test_silent_topics_are_named_before_tick_0(procs, ros_env, tmp_path):
     _, err = run.communicate(timeout=200)
     assert run.returncode == 1
     assert "no pose within 5 s from r2 (/r2/odom)" in err.decode()
+
+
+LISTENER = r"""
+import json, signal, sys, threading
+import rclpy
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from nav_msgs.msg import Odometry, Path
+from rclpy.signals import SignalHandlerOptions
+rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
+node = rclpy.create_node("copath_test_listener")
+seen = {}
+last = {}
+def cb(topic):
+    def f(msg):
+        seen[topic] = seen.get(topic, 0) + 1
+        if isinstance(msg, Odometry):
+            last[topic] = [msg.pose.pose.position.x, msg.pose.pose.position.y, msg.header.frame_id, msg.child_frame_id]
+        else:
+            last[topic] = len(msg.poses)
+    return f
+latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+for topic in sys.argv[1].split(","):
+    typ = Odometry if topic.endswith("/odom") else Path
+    node.create_subscription(typ, topic, cb(topic), latched if typ is Path else 10)
+stop = threading.Event()
+signal.signal(signal.SIGTERM, lambda *a: stop.set())
+print("ready", flush=True)
+while not stop.is_set():
+    rclpy.spin_once(node, timeout_sec=0.1)
+print(json.dumps({"seen": seen, "last": last}), flush=True)
+"""
+
+
+def test_simulated_run_is_mirrored_into_ros2_live(procs, ros_env, tmp_path):
+    """copath run --ros2: a ROS 2 subscriber sees every robot's odometry (frame map), the
+    DMPC's broadcast horizon as nav_msgs/Path and the reference path."""
+    topics = ["/r1/odom", "/r2/odom", "/r3/odom", "/r1/plan", "/paths/main"]
+    listener = procs.start(["-c", LISTENER, ",".join(topics)])
+    assert listener.stdout.readline().strip() == b"ready"
+    out = tmp_path / "run"
+    run = procs.start(["-m", "orchestrator", "run", "e5.2-dmpc-ellipse-triangle", "--ros2", "--duration", "4",
+                       "--set", "run.settle_s=1", "--out", str(out), "-q", "--no-plots"])
+    _, err = run.communicate(timeout=300)
+    assert run.returncode in (0, 3), err.decode()[-2000:]
+    time.sleep(0.5)
+    listener.send_signal(signal.SIGTERM)
+    got = json.loads(listener.communicate(timeout=30)[0].decode().strip().splitlines()[-1])
+    ticks = round(4 / 0.05)  # E5.2: dt = 0.05 s
+    for n in ("r1", "r2", "r3"):
+        assert ticks - 5 <= got["seen"][f"/{n}/odom"] <= ticks, got["seen"]
+        assert got["last"][f"/{n}/odom"][2:] == ["map", f"{n}/base_link"]
+    assert got["seen"]["/r1/plan"] >= 1 and got["last"]["/r1/plan"] > 1
+    assert got["seen"]["/paths/main"] == 1 and got["last"]["/paths/main"] >= 50
+    poses = read_log(out / "run.mcap")
+    last_truth = [r for _, _, r in poses.records if getattr(r, "TYPE", "") == "truth"][-1]
+    assert got["last"]["/r1/odom"][:2] == pytest.approx(last_truth.poses[0][:2])

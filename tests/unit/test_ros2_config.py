@@ -81,3 +81,13 @@ def test_ros2_scenario_without_rclpy_gives_one_line_and_no_traceback():
     assert len(lines) == 1 and "Traceback" not in p.stderr, p.stderr
     assert "world.backend = 'ros2' needs ROS 2 for Python (rclpy not installed)" in lines[0]
     assert "pip install -e '.[ros2]'" in lines[0]
+
+
+def test_ros2_view_flag_without_rclpy_gives_one_line():
+    code = ("import sys; sys.modules['rclpy'] = None\n"
+            "from orchestrator.cli import main\n"
+            "sys.exit(main(['run', 'e5.5', '--ros2']))")
+    p = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=120)
+    lines = p.stderr.strip().splitlines()
+    assert p.returncode == 2 and len(lines) == 1 and "Traceback" not in p.stderr, p.stderr
+    assert "--ros2 needs ROS 2 for Python (rclpy not installed): pip install -e '.[ros2]'" in lines[0]

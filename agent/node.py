@@ -428,6 +428,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--run-id", required=True)
     p.add_argument("--robot", required=True, help="robot name in the scenario")
     p.add_argument("--config", required=True, help="scenario file (.toml, or the run's scenario.json)")
+    p.add_argument("--io", choices=("zenoh", "ros2"), default="zenoh",
+                   help="ros2: the robot's own odometry and cmd_vel on this computer, no bridge hop (docs/ros2.md)")
     p.add_argument("-v", "--verbose", action="store_true")
     add_config_arguments(p)
     args = p.parse_args(argv)
@@ -437,6 +439,11 @@ def main(argv: list[str] | None = None) -> int:
         scenario = PRELOADED.get(args.config) or load_scenario(args.config)
         keys = Keys(args.run_id)
         scenario.robot(args.robot)
+        if args.io == "ros2":  # one line when ROS 2 or the scenario does not allow it (agent/io_ros2.py)
+            from .io_ros2 import problem
+
+            if (why := problem(scenario, args.robot)) is not None:
+                raise ConfigError(why)
         conf = dataclasses.replace(session_config_from_args(args), lease_ms=round(1e3 * scenario.run.lease_s))
         runtime = RobotRuntime(scenario, args.robot, keys)  # builds the controller (and solvers) once
     except (ConfigError, ValueError) as exc:
@@ -449,7 +456,12 @@ def main(argv: list[str] | None = None) -> int:
         if conf.authenticated:  # behind a secure router: step outside the grants and fail at once
             link.guard(AccessPolicy.for_scenario(keys, scenario), args.robot)
         try:
-            AgentNode(runtime, keys, link, scenario.run.clock).run()
+            if args.io == "ros2":
+                from .io_ros2 import run as run_with_ros2
+
+                run_with_ros2(runtime, keys, link, scenario.run.clock)
+            else:
+                AgentNode(runtime, keys, link, scenario.run.clock).run()
         except AccessDenied as exc:
             print(f"copath agent: {exc}", file=sys.stderr)
             return 2

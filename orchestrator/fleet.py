@@ -319,6 +319,9 @@ def run_fleet(scenario: Scenario, opts: RunOptions) -> RunOutcome:
     def _auth(proc: str) -> list[str]:  # a process's credentials, in a file only its owner reads
         return ["--zenoh-config", str(creds.process_file(proc).resolve())] if creds is not None else []
 
+    def _io(name: str) -> list[str]:  # a robot whose agent drives it over ROS 2 itself (docs/ros2.md)
+        return ["--io", "ros2"] if scenario.world.ros2 and scenario.world.robots[name].commands == "agent" else []
+
     policy = scenario.run.on_robot_failure
     restarts = {n: 0 for n in scenario.robot_names}
     gone: set[str] = set()  # robots lost under "continue"
@@ -329,7 +332,7 @@ def run_fleet(scenario: Scenario, opts: RunOptions) -> RunOutcome:
     def _agent(name: str) -> _Child:
         spawned_at[name] = time.monotonic()
         log = out / "logs" / (f"{name}.log" if not restarts[name] else f"{name}.restart{restarts[name]}.log")
-        argv = ["--robot", name, *common, *_auth(name)]
+        argv = ["--robot", name, *common, *_auth(name), *_io(name)]
         # a restart (run.on_robot_failure = "restart") is a fresh process, as a robot rebooting would be
         child = zygote.spawn(name, argv, log) if zygote is not None and not restarts[name] else None
         return child or _spawn(name, [sys.executable, "-m", "agent", *argv], log, out / "logs")
@@ -344,7 +347,7 @@ def run_fleet(scenario: Scenario, opts: RunOptions) -> RunOutcome:
             children.append(_agent(name))
         for name in opts.external:  # the user starts these: the exact command, then the wait
             cmd = ["copath", "agent", "--run-id", opts.run_id, "--robot", name, "--config", str(scen_path.resolve()),
-                   *[a for e in listen for a in ("--connect", e)], *_auth(name)]
+                   *[a for e in listen for a in ("--connect", e)], *_auth(name), *_io(name)]
             print(f"copath run: start robot {name} yourself (the run waits for it):\n  {' '.join(cmd)}",
                   file=sys.stderr, flush=True)
         while True:

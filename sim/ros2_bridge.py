@@ -130,6 +130,8 @@ class BridgeNode(SimNode):
                 self._first.notify_all()
             if self._t0 is None or self.closing:
                 return
+            if io.commands == "agent":  # its agent reads the pose itself (copath agent --io ros2)
+                return
             self._forwarded[name].append((time.time(), stamp))
             # under the lock: no observation can follow the end record (agents take that for a forgery)
             self.link.publish(self.keys.obs(name), Obs(self.k, float(now - self._t0), [float(v) for v in p]))
@@ -166,6 +168,9 @@ class BridgeNode(SimNode):
     def _send(self, name: str, now: float) -> None:
         """Publish the robot's command: acceleration-limited towards the request (lock held)."""
         dt = min(1.0, max(1e-3, now - self.out_at[name]))
+        if self.io[name].commands == "agent":  # its agent publishes the robot's commands itself
+            self.out[name] = np.zeros_like(self.requested[name]) if name in self.held else self.requested[name].copy()
+            return
         target = np.zeros_like(self.requested[name]) if name in self.held else self.requested[name]
         out = np.asarray(limit_change(self.models[name], self.out[name], target, dt), dtype=float)
         self.out[name], self.out_at[name] = out, now

@@ -14,6 +14,7 @@
     frame = "map"                 # the header.frame_id poses must carry ("": any)
     origin = "start"              # pose of that frame in the scenario's frame: [x, y, theta] or
                                   # "start" (the robot's scenario pose; default for odometry)
+    commands = "bridge"           # who publishes cmd_vel: "bridge" or "agent" (copath agent --io ros2)
 
 docs/ros2.md explains each key, the QoS and what the run's log records.
 """
@@ -27,13 +28,14 @@ from typing import Any, Mapping
 
 from ..config import ConfigError, as_float_tuple, require
 
-__all__ = ["BACKENDS", "POSE_TYPES", "RobotIO", "WorldConfig", "parse_world"]
+__all__ = ["BACKENDS", "COMMANDERS", "POSE_TYPES", "RobotIO", "WorldConfig", "parse_world"]
 
 BACKENDS = ("sim", "ros2")
 POSE_TYPES = ("odometry", "pose_stamped")
 _TOPIC_RE = re.compile(r"/?[A-Za-z][A-Za-z0-9_]*(/[A-Za-z][A-Za-z0-9_]*)*")
 _FRAME_RE = re.compile(r"[A-Za-z0-9_/.-]*")
-_ROBOT_KEYS = ("pose_topic", "pose_type", "cmd_topic", "frame", "origin")
+_ROBOT_KEYS = ("pose_topic", "pose_type", "cmd_topic", "frame", "origin", "commands")
+COMMANDERS = ("bridge", "agent")
 _WORLD_KEYS = ("backend", "start_timeout_s", "pose_type", "cmd_rate_hz", "robots")
 
 
@@ -55,6 +57,11 @@ class RobotIO:
     robot's start pose: wheel odometry starts at zero where the robot was placed, and the
     robot is placed where the scenario starts it. Motion capture (``pose_stamped``) reports
     in a fixed frame: its default origin is zero."""
+    commands: str = "bridge"
+    """Who reads the pose and publishes cmd_vel: ``bridge`` (the bridge, for the agent) or
+    ``agent``: the robot's agent itself, ``copath agent --io ros2`` on the robot's computer,
+    with no bridge hop; the bridge then only records the reported poses and, when the
+    agent is gone or the run ends, sends zeros."""
 
 
 @dataclass(frozen=True)
@@ -104,8 +111,10 @@ def _robot_io(name: str, tab: Any, default_type: str, start) -> RobotIO:
         raise ConfigError(f"{where}.origin = {origin!r} is not allowed; expected [x, y, theta] or 'start'")
     origin = as_float_tuple(origin, f"{where}.origin", 3)
     require(all(math.isfinite(v) for v in origin), f"{where}.origin", list(origin), "must be finite numbers")
+    commands = tab.get("commands", "bridge")
+    require(commands in COMMANDERS, f"{where}.commands", commands, f"allowed: {', '.join(COMMANDERS)}")
     return RobotIO(_topic(tab.get("pose_topic", pose_default), f"{where}.pose_topic"), kind,
-                   _topic(tab.get("cmd_topic", f"/{name}/cmd_vel"), f"{where}.cmd_topic"), frame, origin)
+                   _topic(tab.get("cmd_topic", f"/{name}/cmd_vel"), f"{where}.cmd_topic"), frame, origin, commands)
 
 
 def parse_world(raw: Any, starts: Mapping[str, tuple[float, float, float]]) -> WorldConfig:

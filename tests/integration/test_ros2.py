@@ -220,3 +220,22 @@ def test_simulated_run_is_mirrored_into_ros2_live(procs, ros_env, tmp_path):
     poses = read_log(out / "run.mcap")
     last_truth = [r for _, _, r in poses.records if getattr(r, "TYPE", "") == "truth"][-1]
     assert got["last"]["/r1/odom"][:2] == pytest.approx(last_truth.poses[0][:2])
+
+
+def test_agent_with_ros2_io_drives_its_robot_without_the_bridge(procs, ros_env, tmp_path):
+    """world.robots.r2.commands = "agent": r2's agent (copath agent --io ros2) reads /r2/odom
+    and publishes /r2/cmd_vel itself; the column still forms (E5.5)."""
+    record = tmp_path / "twists.jsonl"
+    _robots(procs, "e5.5", None, record)
+    out = tmp_path / "run"
+    run = _run(procs, "e5.5", out, "--set", "world.robots.r2.commands=agent", "--duration", "30",
+               "--set", "run.settle_s=20")
+    _, err = run.communicate(timeout=400)
+    assert run.returncode in (0, 3), err.decode()[-2000:]
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["fleet"]["coordination_error_max_m"] < 0.05 and m["fleet"]["collisions"] == 0, m["fleet"]
+    assert m["robots"]["r2"]["path_error_max_m"] < 0.05
+    r2 = _stats(out / "run.mcap", "r2")
+    assert r2["ros2_poses"] > 300 and r2["ros2_twists"] > 300  # its own odometry in, its own Twists out
+    assert "ros2_poses" not in _stats(out / "run.mcap", "r1")  # r1 is driven through the bridge
+    assert any(any(t["cmd"]) for t in _twists(record) if t["robot"] == "r2")

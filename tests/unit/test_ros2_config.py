@@ -91,3 +91,12 @@ def test_ros2_view_flag_without_rclpy_gives_one_line():
     lines = p.stderr.strip().splitlines()
     assert p.returncode == 2 and len(lines) == 1 and "Traceback" not in p.stderr, p.stderr
     assert "--ros2 needs ROS 2 for Python (rclpy not installed): pip install -e '.[ros2]'" in lines[0]
+
+
+def test_agent_ros2_io_outside_a_ros2_world_is_one_line():
+    p = subprocess.run([sys.executable, "-m", "agent", "--run-id", "x", "--robot", "r1", "--config",
+                        "configs/e5.5-column-lemniscate.toml", "--io", "ros2"], cwd=REPO, capture_output=True,
+                       text=True, timeout=120)
+    lines = p.stderr.strip().splitlines()
+    assert p.returncode == 2 and len(lines) == 1 and "Traceback" not in p.stderr, p.stderr
+    assert lines[0].startswith("copath agent: ") and "--io ros2" in lines[0]

@@ -90,6 +90,11 @@ class AgentNode:
         self._sim_gone_at: float | None = None
         self._cpu_at_start = 0.0
         self._barrier = True
+        self.process_start = process_start_time()
+        """Wall time [s] this process started (a fork of the zygote: the fork)."""
+        self.joined_late = False
+        """The run had started before this process: a restart (``run.on_robot_failure``)."""
+        self._first_step_logged = False
 
     # -- receive: one callback per record type (link threads, or inline) -------------
     def _on_obs(self, key: str, rec) -> None:
@@ -147,10 +152,16 @@ class AgentNode:
 
     def _on_sim(self, key: str, rec) -> None:
         if isinstance(rec, Start):
+            if self.started.is_set():  # announced again for a robot that rejoined: the first one holds
+                return
             cpu = os.times()
             self._cpu_at_start = cpu.user + cpu.system
             self.wall_t0 = rec.wall_t0
+            self.joined_late = rec.wall_t0 < self.process_start - 0.5
             self.started.set()
+            logger.info("synchronised on the start record: run time %.2f s%s, %.2f s after the process started",
+                        time.time() - rec.wall_t0, " (joining a run in progress)" if self.joined_late else "",
+                        time.time() - self.process_start)
         elif isinstance(rec, End):
             if not self.inline:
                 self._end_at = time.monotonic()  # honoured by _end_due
@@ -271,6 +282,20 @@ class AgentNode:
         while self.overheard:
             self.rt.overhear(self.overheard.popleft())
 
+    def _first_step(self, obs: Obs, now: float) -> None:
+        """Say when this process first stepped; a robot that joined a run in progress also
+        puts it on the timeline (``rejoined_stepping``: seconds from its process start to
+        its first command, docs/faults.md)."""
+        self._first_step_logged = True
+        since = time.time() - self.process_start
+        late = self.joined_late or obs.k > 0
+        logger.info("first step at run time %.2f s (tick %d), %.2f s after the process started%s", now, obs.k, since,
+                    "; rejoined a run in progress" if late else "")
+        if late:
+            self.link.publish(self.keys.event(self.rt.name), Event(
+                float(now), self.rt.name, "rejoined_stepping",
+                {"k": obs.k, "since_process_start_s": round(since, 3), "pid": os.getpid()}))
+
     def _emit(self, out) -> None:
         name = self.rt.name
         for key, env in out.peers:
@@ -299,6 +324,8 @@ class AgentNode:
         else:
             self._await_peers(obs)
         self._emit(self.rt.step(obs, obs.t))
+        if not self._first_step_logged:
+            self._first_step(obs, obs.t)
 
     def start(self) -> None:
         """Subscribe, then declare the liveliness token (ready). With a synchronous link
@@ -321,6 +348,8 @@ class AgentNode:
         self.link.watch_liveliness(self.keys.alive("sim"), self._on_sim_alive)
         self.link.watch_liveliness(self.keys.all_alive, self._on_robot_alive)
         self.link.declare_token(self.keys.alive(name))  # ready: subscriptions are in place
+        logger.info("ready (%s clock, pid %d, %.2f s after the process started): liveliness token declared, "
+                    "waiting for the simulator", self.clock, os.getpid(), time.time() - self.process_start)
 
     def run(self) -> None:
         """Start and serve the run on this thread until it ends (threaded links)."""
@@ -342,9 +371,16 @@ class AgentNode:
             if drop is not None:  # realtime: the newest broadcast matters, a starved receiver loses old ones
                 drop(self.keys.peer_broadcast(self.rt.name), self.keys.peer_direct(self.rt.name, "*"))
             _yield_to_simulator()
+            waited, told = time.monotonic(), time.monotonic()
             while not self.started.wait(timeout=0.5):
                 if self._end_due():
                     break
+                if time.monotonic() - told >= WAIT_LOG_S:  # say what it waits for, every few seconds
+                    told = time.monotonic()
+                    logger.warning("still waiting for the simulator's start record (%s) after %.0f s%s",
+                                   self.keys.start, told - waited,
+                                   "" if self.latest_obs is None else
+                                   f"; observations arrive (tick {self.latest_obs.k})")
             period = self.rt.dt
             next_t = time.time()
             extra = self.rt.counters.extra
@@ -357,7 +393,14 @@ class AgentNode:
                 if obs is not None and self._end_at is None:  # no step while an End awaits confirmation
                     self._drain_peers()
                     now = time.time() - self.wall_t0
-                    self._emit(self.rt.step(obs, now))
+                    out = self.rt.step(obs, now)
+                    # the timing account so far, on every step: a process killed before its
+                    # closing account leaves it in the log all the same (docs/faults.md)
+                    out.telemetry.data["deadline_misses"] = extra["deadline_misses"]
+                    out.telemetry.data["realtime_periods"] = extra["realtime_periods"]
+                    self._emit(out)
+                    if not self._first_step_logged:
+                        self._first_step(obs, now)
                 next_t += period
                 sleep = next_t - time.time()
                 if sleep > 0:
@@ -388,6 +431,20 @@ class AgentNode:
                 counters[f"peer_age_ms_p{q}"] = round(1e3 * ages[min(len(ages) - 1, int(q / 100 * len(ages)))], 4)
             counters["peer_age_ms_max"] = round(1e3 * ages[-1], 4)
         self.link.publish(self.keys.stats(self.rt.name), Stats(self.rt.name, self.link.published, counters))
+
+
+WAIT_LOG_S = 5.0
+"""A node waiting for something it has not got says so this often [s]."""
+
+
+def process_start_time() -> float:
+    """Wall time [s] this process started, from ``/proc`` (Linux; elsewhere: now)."""
+    try:
+        with open("/proc/self/stat") as fh:  # field 22: start time after boot, in clock ticks
+            ticks = int(fh.read().rsplit(")", 1)[1].split()[19])
+        return time.time() - (time.clock_gettime(time.CLOCK_BOOTTIME) - ticks / os.sysconf("SC_CLK_TCK"))
+    except (OSError, ValueError, IndexError, AttributeError):
+        return time.time()
 
 
 REALTIME_NICE = 15
@@ -435,6 +492,7 @@ def main(argv: list[str] | None = None) -> int:
     args = p.parse_args(argv)
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO,
                         format=f"%(asctime)s {args.robot} %(levelname)s %(message)s")
+    logger.info("started: robot %s of run %s, pid %d", args.robot, args.run_id, os.getpid())
     try:
         scenario = PRELOADED.get(args.config) or load_scenario(args.config)
         keys = Keys(args.run_id)
@@ -453,6 +511,7 @@ def main(argv: list[str] | None = None) -> int:
     from copath.wire.session import ZenohLink  # noqa: PLC0415  (the in-process loop opens no session)
 
     with ZenohLink.open(conf) as link:
+        link.sender = args.robot  # in every record's attachment (the recorder's accounts)
         if conf.authenticated:  # behind a secure router: step outside the grants and fail at once
             link.guard(AccessPolicy.for_scenario(keys, scenario), args.robot)
         try:

@@ -32,6 +32,7 @@ from typing import Any
 from agent.controllers import import_path_dirs
 from copath.scenario import Scenario
 from copath.wire.keys import Keys
+from copath.wire.messages import Event
 from copath.wire.session import SessionConfig, ZenohLink, free_port, loopback_endpoint
 
 from .failures import FailureReporter
@@ -44,6 +45,11 @@ logger = logging.getLogger(__name__)
 __all__ = ["RunOptions", "RunOutcome", "run_fleet", "new_run_id"]
 
 REPO_ROOT = pathlib.Path(__file__).resolve().parents[1]
+
+
+REJOIN_TIMEOUT_S = 20.0
+"""Default bound [s] from a restarted robot's process start to its first command (measured:
+about 1-2 s when forked from the zygote on a loaded 2-core machine; docs/faults.md)."""
 
 
 def new_run_id(scenario_id: str) -> str:
@@ -72,6 +78,11 @@ class RunOptions:
     None: the scenario's ``run.secure``."""
     ros2_view: bool = False
     """Mirror the run into ROS 2 live (``copath run --ros2``, orchestrator/ros2_view.py)."""
+    max_restarts: int = 3
+    """``run.on_robot_failure = "restart"``: restarts per robot before it is left lost."""
+    rejoin_timeout_s: float = REJOIN_TIMEOUT_S
+    """A restarted robot that has sent no command this long after its process started is
+    lost: an event, a terminal line, the process stopped and the run failed (docs/faults.md)."""
     fork_server: bool = field(default_factory=lambda: os.environ.get("COPATH_FORK_SERVER", "1") != "0")
     """Start the agents by forking a pre-imported launcher (``agent/zygote.py``) instead of
     one ``python -m agent`` each: the imports are paid once (docs/performance.md, P10).
@@ -284,7 +295,7 @@ def run_fleet(scenario: Scenario, opts: RunOptions) -> RunOutcome:
                                           lease_ms=round(1e3 * scenario.run.lease_s),
                                           extra=router_extra))
     recorder = Recorder(out / "run.mcap", keys, metadata, scenario, live=live)
-    router.subscribe_raw(keys.all, recorder.write)
+    router.subscribe_raw(keys.all, recorder.write, attachment=True)  # with each sender's sequence numbers
     if mirror is not None:
         router.subscribe_raw(keys.all, mirror.write)
     # the first controller failure of each robot, one line here (its traceback is in its log)
@@ -325,7 +336,9 @@ def run_fleet(scenario: Scenario, opts: RunOptions) -> RunOutcome:
     policy = scenario.run.on_robot_failure
     restarts = {n: 0 for n in scenario.robot_names}
     gone: set[str] = set()  # robots lost under "continue"
-    max_restarts = 3
+    max_restarts = opts.max_restarts
+    rejoining: dict[str, int] = {}  # restarted robots not commanding yet: their spawn time [ns]
+    never_back: list[str] = []  # restarted robots that missed the rejoin bound, or ran out of restarts
 
     zygote = _Zygote(scen_path, out / "logs") if opts.fork_server else None
 
@@ -333,9 +346,40 @@ def run_fleet(scenario: Scenario, opts: RunOptions) -> RunOutcome:
         spawned_at[name] = time.monotonic()
         log = out / "logs" / (f"{name}.log" if not restarts[name] else f"{name}.restart{restarts[name]}.log")
         argv = ["--robot", name, *common, *_auth(name), *_io(name)]
-        # a restart (run.on_robot_failure = "restart") is a fresh process, as a robot rebooting would be
-        child = zygote.spawn(name, argv, log) if zygote is not None and not restarts[name] else None
-        return child or _spawn(name, [sys.executable, "-m", "agent", *argv], log, out / "logs")
+        # a restart (run.on_robot_failure = "restart") is a fresh process, as a robot rebooting
+        # would be: forked from the zygote it is one too (new session, new controller), without
+        # paying the imports again, which took 1.4-1.7 s of a restart under load (docs/faults.md)
+        child = zygote.spawn(name, argv, log) if zygote is not None else None
+        child = child or _spawn(name, [sys.executable, "-m", "agent", *argv], log, out / "logs")
+        if restarts[name]:
+            rejoining[name] = time.time_ns()
+        return child
+
+    def _check_rejoins() -> None:
+        """A restarted robot commands again within ``opts.rejoin_timeout_s`` of its process
+        start, or it is lost: event, terminal line, process stopped (docs/faults.md)."""
+        for name, t_ns in list(rejoining.items()):
+            last = recorder.last_cmd_ns.get(name, 0)
+            if last > t_ns:
+                del rejoining[name]
+                logger.info("robot %s commands again %.2f s after its restart", name, (last - t_ns) / 1e9)
+                continue
+            waited = (time.time_ns() - t_ns) / 1e9
+            if waited < opts.rejoin_timeout_s:
+                continue
+            del rejoining[name]
+            never_back.append(name)
+            gone.add(name)
+            msg = (f"robot {name} sent no command {waited:.1f} s after its restart (bound "
+                   f"{opts.rejoin_timeout_s:g} s); it is lost, see {out / 'logs' / f'{name}.restart{restarts[name]}.log'}")
+            print(f"copath run: {msg}", file=sys.stderr, flush=True)
+            logger.error(msg)
+            recorder.write(keys.event("orchestrator"), Event(float(recorder.sim_t), "orchestrator", "rejoin_timeout", {
+                "robot": name, "waited_s": round(waited, 3), "bound_s": opts.rejoin_timeout_s}).pack())
+            for c in list(children[1:]):
+                if c.name == name:
+                    children.remove(c)
+                    _stop([c])
 
     try:
         world = "sim.ros2_bridge" if scenario.world.ros2 else "sim"  # ROS 2 robots: the bridge (docs/ros2.md)
@@ -356,6 +400,7 @@ def run_fleet(scenario: Scenario, opts: RunOptions) -> RunOutcome:
             rc_sim = sim.proc.poll()
             failed = [c for c in children[1:] if c.proc.poll() is not None and (c.proc.returncode != 0 or rc_sim is None and recorder.end is None)]
             if policy == "restart" and rc_sim is None and recorder.end is None:
+                _check_rejoins()
                 for c in children[1:]:  # frozen (its token expired, the process is still there): kill, restart
                     if (c.proc.poll() is None and c.name not in ready
                             and token_at.get(c.name, 0.0) > spawned_at.get(c.name, float("inf"))):
@@ -379,7 +424,12 @@ def run_fleet(scenario: Scenario, opts: RunOptions) -> RunOutcome:
                         restarts[c.name] += 1
                         children.append(_agent(c.name))
                     else:
+                        if policy == "restart":
+                            never_back.append(c.name)
+                            print(f"copath run: robot {c.name} is lost: {max_restarts} restarts used",
+                                  file=sys.stderr, flush=True)
                         gone.add(c.name)
+                        rejoining.pop(c.name, None)
                 failed = []
             if failed:
                 c = failed[0]
@@ -469,6 +519,8 @@ def run_fleet(scenario: Scenario, opts: RunOptions) -> RunOutcome:
     if ok and accounts | gone != {"sim", *scenario.robot_names}:
         missing = sorted({"sim", *scenario.robot_names} - accounts - gone)
         ok, reason = False, f"no closing account from {missing}"
+    if ok and never_back:  # "restart" promises the robot back: one that never came is a failure
+        ok, reason = False, f"robot {never_back[0]} never came back after its restart"
     metrics = log_metrics(log, scenario, run_id=opts.run_id, clock=scenario.run.clock, wall_time_s=wall, ok=ok,
                           failure=reason)
     (out / "metrics.json").write_text(json.dumps(metrics, indent=2))

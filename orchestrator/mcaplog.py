@@ -26,6 +26,7 @@ from mcap.well_known import MessageEncoding
 
 from copath.wire.keys import Keys
 from copath.wire.messages import End, Stats, Truth, WireError, unpack
+from copath.wire.session import read_seq_attachment
 
 __all__ = ["Recorder", "RunLog", "read_log", "iter_raw", "software_version", "write_records", "LogError",
            "check_log", "LogCheck", "read_metadata", "fault_metadata"]
@@ -83,6 +84,11 @@ class Recorder:
         self._lock = threading.Lock()
         self.count = 0
         self.count_by_key: dict[str, int] = {}
+        self.last_cmd_ns: dict[str, int] = {}
+        self.accounts: dict[tuple[str, int], dict] = {}
+        """Per (sender, incarnation): records received, first and last sequence number, the
+        numbers missing (gaps), and the closing account's ``published`` when one came."""
+        """Receive time [ns] of each robot's newest command."""
         self.sim_t = 0.0
         self.stats: dict[str, Stats] = {}
         self.end: End | None = None
@@ -112,13 +118,18 @@ class Recorder:
             for topic, msg in msgs:
                 sink.log(topic, msg, now)
 
-    def write(self, key: str, data: bytes, log_time_ns: int | None = None) -> None:
-        """Record ``data`` published on ``key`` (stamped now, or at ``log_time_ns``)."""
+    def write(self, key: str, data: bytes, log_time_ns: int | None = None, attachment: bytes | None = None) -> None:
+        """Record ``data`` published on ``key`` (stamped now, or at ``log_time_ns``);
+        ``attachment``: the link's (incarnation, seq, sender) of the record, counted in
+        :attr:`accounts`."""
         now = time.time_ns() if log_time_ns is None else int(log_time_ns)
         rel = self.keys.relative(key)
+        acct = None
         with self._lock:
             if self._closed:
                 return
+            if attachment is not None:
+                acct = self._count(attachment, rel)
             ch = self._channels.get(key)
             if ch is None:
                 ch = self._ctx._create_channel(key, message_encoding=MessageEncoding.MessagePack, schema=None,
@@ -126,6 +137,8 @@ class Recorder:
                 self._channels[key] = ch
             self.count += 1
             self.count_by_key[key] = self.count_by_key.get(key, 0) + 1
+            if rel.endswith("/cmd"):  # robot/<name>/cmd: when each robot last commanded (a restart's rejoin)
+                self.last_cmd_ns[rel.split("/")[1]] = now
             ch.log(data, now)  # sequence: the channel's count, from 1
         # light decoding for progress and the closing account (every record when views are built)
         views = self._viz is not None and not rel.endswith(self._viz_skip)
@@ -138,6 +151,8 @@ class Recorder:
                 self.sim_t = rec.t
             elif isinstance(rec, Stats):
                 self.stats[rec.proc] = rec
+                if acct is not None:
+                    acct["closed"] = rec.published
             elif isinstance(rec, End):
                 self.end = rec
             if views:
@@ -146,6 +161,33 @@ class Recorder:
                         self._emit(self._static, now)
                         self._static = []
                     self._emit(self._viz.feed(key, rec), now)
+
+    def _count(self, attachment: bytes, rel: str) -> dict | None:
+        """One record into its sender's account (under the lock): what arrived, and the
+        sequence numbers that never did (gaps; one that arrives late closes its gap)."""
+        got = read_seq_attachment(attachment)
+        if got is None:
+            return None
+        inc, seq, sender = got
+        acct = self.accounts.get((sender, inc))
+        if acct is None:
+            acct = self.accounts[(sender, inc)] = {"sender": sender, "incarnation": f"{inc:012x}", "received": 0,
+                                                   "first": seq, "last": seq - 1, "missing": 0, "closed": None,
+                                                   "first_ns": time.time_ns()}
+        acct["received"] += 1
+        if seq > acct["last"]:
+            acct["missing"] += seq - acct["last"] - 1
+            acct["last"] = seq
+        elif acct["missing"] > 0:  # late, out of order: its gap was counted
+            acct["missing"] -= 1
+        acct["last_ns"] = time.time_ns()
+        return acct
+
+    def account_metadata(self) -> dict[str, str]:
+        """The accounts as the log's ``accounts`` metadata: one JSON object per process
+        incarnation, keyed ``sender#incarnation`` (docs/faults.md, "Accounts that survive a kill")."""
+        with self._lock:
+            return {f"{a['sender'] or '?'}#{a['incarnation']}": json.dumps(a) for a in self.accounts.values()}
 
     def add_process_logs(self, log_dir: pathlib.Path) -> int:
         """Every line of the processes' logs (``log_dir/*.log``) as ``foxglove.Log`` on
@@ -165,7 +207,11 @@ class Recorder:
             if self._closed:
                 return
             self._closed = True
-            for name, data in (extra_metadata or {}).items():
+            extra_metadata = dict(extra_metadata or {})
+            if self.accounts:
+                extra_metadata.setdefault("accounts", {f"{a['sender'] or '?'}#{a['incarnation']}": json.dumps(a)
+                                                       for a in self.accounts.values()})
+            for name, data in extra_metadata.items():
                 self._mcap.write_metadata(name, {k: str(v) for k, v in data.items()})
             for ch in self._channels.values():
                 ch.close()

@@ -23,6 +23,7 @@ Definitions (errors are taken after ``run.settle_s``; docs/metrics.md, M1-M6):
 from __future__ import annotations
 
 import itertools
+import json
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -64,6 +65,10 @@ ROBOT_KEYS = ROBOT_KEYS + ("messages_rejected",)
 # run.on_robot_failure: process restarts and the simulated time the robot was gone (from the
 # simulator's robot_lost / robot_rejoined events; 0 when it never was)
 ROBOT_KEYS = ROBOT_KEYS + ("restarts", "outage_s")
+# a process lost (killed, frozen) whose robot never commanded again before the run's end: its
+# outage_s runs to the end (docs/faults.md, "Outages from the commands"); false when it came back
+# or never went
+ROBOT_KEYS = ROBOT_KEYS + ("outage_open",)
 # realtime clock: control periods whose step ended after the next period had begun, from the
 # robot's closing account; null in lockstep (where the simulator counts missed_ticks)
 ROBOT_KEYS = ROBOT_KEYS + ("deadline_misses",)
@@ -102,6 +107,12 @@ FLEET_KEYS = (
     "deadline_misses",
     "deadline_miss_rate",
     "physics_overruns",
+    # the recorder's own accounts (over Zenoh; null in one process): records that never
+    # reached it (gaps in each sender's sequence numbers), and process incarnations that
+    # left no closing account (killed), whose published count is taken from their last
+    # sequence number (docs/faults.md, "Accounts that survive a kill")
+    "messages_lost",
+    "accounts_reconstructed",
     # a leader-following team (Sec. 5.3): who led from when, [[t, robot], ...], by the
     # succession rule on the simulator's loss events; null for other teams (docs/metrics.md, M3)
     "leaders",
@@ -148,6 +159,10 @@ class Trace:
     sim_time_s: float = 0.0
     estimates: dict[str, list[Estimate]] = field(default_factory=dict)
     """Each robot's Estimate records (``[sensing]`` estimator; metrics_estimation.py)."""
+    outages: dict[str, list[tuple[float, float | None, float | None]]] = field(default_factory=dict)
+    """Per robot, each loss of its process (the simulator's ``robot_lost``, not a radio
+    silence): (event time, its last command's time before it or None, its first command's
+    time after it or None: never back), in log order."""
 
 
 def trace_from_records(records, keys: Keys, radii: dict[str, float] | None = None) -> Trace:
@@ -160,6 +175,7 @@ def trace_from_records(records, keys: Keys, radii: dict[str, float] | None = Non
     end = None
     dt = 0.0
     estimates: dict[str, list[Estimate]] = {}
+    lost: list[tuple[str, float, int]] = []  # (robot, event time, its commands before the event)
     for _, key, rec in records:
         rel = keys.relative(key)
         if isinstance(rec, Truth):
@@ -172,6 +188,8 @@ def trace_from_records(records, keys: Keys, radii: dict[str, float] | None = Non
             stats[rec.proc] = dict(rec.counters)
         elif isinstance(rec, Event):
             events.append(rec)
+            if rec.source == "sim" and rec.what == "robot_lost" and rec.detail.get("cause") != "silence":
+                lost.append((str(rec.detail.get("robot")), float(rec.t), len(cmds.get(str(rec.detail.get("robot")), ()))))
         elif isinstance(rec, Estimate):
             estimates.setdefault(rel.split("/")[1], []).append(rec)
         elif isinstance(rec, End):
@@ -202,23 +220,44 @@ def trace_from_records(records, keys: Keys, radii: dict[str, float] | None = Non
             radius=(radii or {}).get(n, 0.0),
         )
     sim_time = float(truth[-1].t + dt) if truth else 0.0
-    return Trace(robots, dt, stats, events, end, sim_time, estimates)
+    outages: dict[str, list[tuple[float, float | None, float | None]]] = {}
+    for n, t, i in lost:
+        c = cmds.get(n, [])
+        outages.setdefault(n, []).append((t, float(c[i - 1].t) if i > 0 else None,
+                                          float(c[i].t) if i < len(c) else None))
+    return Trace(robots, dt, stats, events, end, sim_time, estimates, outages)
 
 
-def _outage(trace: Trace, name: str) -> tuple[int, float]:
-    """(rejoins, seconds of simulated time gone) of one robot from the simulator's events.
-    A radio silence (``cause = "silence"``) counts as time gone, not as a rejoin: no
-    process was restarted."""
+def _outage(trace: Trace, name: str) -> tuple[int, float, bool]:
+    """(rejoins, seconds gone, still gone at the end) of one robot.
+
+    A lost process (killed, frozen) is gone from its last command before the simulator's
+    ``robot_lost`` to its first command after it, in the commands' own times (the truth of
+    what it did, not when its token came back), or to the run's end when it never
+    commanded again. A radio silence (``cause = "silence"``) counts from the simulator's
+    events, as time gone, not as a rejoin: no process was restarted (docs/faults.md)."""
     lost_at, total, rejoins = None, 0.0, 0
     for e in sorted((e for e in trace.events if e.source == "sim" and e.detail.get("robot") == name), key=lambda e: e.t):
-        if e.what == "robot_lost" and lost_at is None:
+        silence = e.detail.get("cause") == "silence"
+        if e.what == "robot_rejoined" and not silence:
+            rejoins += 1
+        if e.what == "robot_lost" and silence and lost_at is None:
             lost_at = e.t
-        elif e.what == "robot_rejoined" and lost_at is not None:
+        elif e.what == "robot_rejoined" and silence and lost_at is not None:
             total += e.t - lost_at
-            lost_at, rejoins = None, rejoins + (e.detail.get("cause") != "silence")
+            lost_at = None
     if lost_at is not None:
         total += max(0.0, trace.sim_time_s - lost_at)
-    return rejoins, round(total, 6)
+    still_out, last_back = False, float("-inf")
+    for t, before, after in trace.outages.get(name, []):
+        start = t if before is None else before
+        if after is not None and after <= last_back:  # a second loss before it came back: counted
+            continue
+        end = after if after is not None else max(start, trace.sim_time_s)
+        total += max(0.0, end - max(start, last_back))
+        last_back = end
+        still_out = after is None
+    return rejoins, round(total, 6), still_out
 
 
 def _rejected(counters: dict | None) -> int | None:
@@ -228,9 +267,24 @@ def _rejected(counters: dict | None) -> int | None:
     return int(max(int(counters.get("rejects", 0) or 0), int(counters.get("rejected", 0) or 0)))
 
 
-def _deadline(counters: dict | None, clock: str) -> tuple[int | None, int]:
-    """(deadline misses, control periods) of a realtime robot from its closing account."""
-    if counters is None or clock != "realtime":
+def _deadline(counters: dict | None, clock: str, rt: "RobotTrace | None" = None) -> tuple[int | None, int]:
+    """(deadline misses, control periods) of a realtime robot: from the running account in
+    its telemetry, summed over its processes (each restart counts from 0 again), so a
+    process killed before its closing account counts too; else from its closing account."""
+    if clock != "realtime":
+        return None, 0
+    if rt is not None and rt.telemetry and "realtime_periods" in rt.telemetry[-1]:
+        misses = periods = 0
+        last = (0, 0)
+        for d in rt.telemetry:
+            n = d.get("realtime_periods")
+            if n is None:
+                continue
+            if n < last[1]:  # a new process: the previous one's account is closed
+                misses, periods = misses + last[0], periods + last[1]
+            last = (int(d.get("deadline_misses", 0) or 0), int(n))
+        return misses + last[0], periods + last[1]
+    if counters is None:
         return None, 0
     return int(counters.get("deadline_misses", 0) or 0), int(counters.get("realtime_periods", 0) or 0)
 
@@ -368,8 +422,8 @@ def compute_metrics(
         robots[r.name] = _robot_metrics(rt, settle, r.model.kind, missed.get(r.name, 0))
         robots[r.name].update(estimation_metrics(trace.estimates.get(r.name), rt.pose_at))
         robots[r.name]["messages_rejected"] = _rejected(trace.stats.get(r.name))
-        robots[r.name]["restarts"], robots[r.name]["outage_s"] = _outage(trace, r.name)
-        robots[r.name]["deadline_misses"] = _deadline(trace.stats.get(r.name), clock)[0]
+        robots[r.name]["restarts"], robots[r.name]["outage_s"], robots[r.name]["outage_open"] = _outage(trace, r.name)
+        robots[r.name]["deadline_misses"] = _deadline(trace.stats.get(r.name), clock, rt)[0]
     geometry = team_geometry(scenario)
     series = truth_series(trace, scenario, geometry) if geometry is not None else None
     for n, e in cross_track_series(trace, scenario, geometry, series).items():
@@ -410,7 +464,7 @@ def compute_metrics(
     rejected = [_rejected(trace.stats.get(p)) for p in ("sim", *scenario.robot_names)]
     fleet["messages_rejected"] = None if all(n is None for n in rejected) else sum(n or 0 for n in rejected)
     if clock == "realtime":
-        dl = [_deadline(trace.stats.get(n), clock) for n in scenario.robot_names]
+        dl = [_deadline(trace.stats.get(n), clock, trace.robots.get(n)) for n in scenario.robot_names]
         dl = [d for d in dl if d[0] is not None]
         if dl:
             fleet["deadline_misses"] = sum(m for m, _ in dl)
@@ -475,10 +529,16 @@ def log_metrics(log, scenario: Scenario, *, run_id: str, clock: str, wall_time_s
     keys = Keys(run_id)
     stats = [r for _, _, r in log.records if isinstance(r, Stats)]
     recorded = sum(1 for _, k, _ in log.records if not keys.relative(k).startswith("stats/")) + log.rejected
+    accounts = [json.loads(v) for v in log.metadata.get("accounts", {}).values()]
+    published = sum(s.published for s in stats) if stats and ok else None
+    if accounts:  # the recorder's ground truth: closed accounts, and the dead ones up to their last record
+        published = sum(a["closed"] if a.get("closed") is not None else a["last"] for a in accounts)
     m = compute_metrics(trace_from_records(log.records, keys), scenario, run_id=run_id, clock=clock,
                         wall_time_s=float("nan") if wall_time_s is None else wall_time_s,
-                        messages_published=sum(s.published for s in stats) if stats and ok else None,
-                        messages_recorded=recorded)
+                        messages_published=published, messages_recorded=recorded)
+    if accounts:
+        m["fleet"]["messages_lost"] = int(sum(a["missing"] for a in accounts))
+        m["fleet"]["accounts_reconstructed"] = sum(1 for a in accounts if a.get("closed") is None)
     m["ok"] = ok
     m["failure"] = None if ok else failure
     return m

@@ -108,6 +108,8 @@ class SimNode:
         self.stale = 0
         self.overruns = 0
         self.sent: dict[str, dict[str, int]] = {}
+        self._start_rec: Start | None = None
+        """The run's start record, announced again to a robot that rejoins (its clock)."""
 
     # -- callbacks (zenoh threads) ----------------------------------------------------
     def _on_cmd(self, key: str, rec) -> None:
@@ -160,6 +162,11 @@ class SimNode:
                 return
             if name not in self.names:
                 continue
+            if alive and self._start_rec is not None:
+                # a restarted process synchronises its clock on the start record, which it
+                # missed: announce it again, unchanged (the others keep their first one)
+                self.link.publish(self.keys.start, self._start_rec)
+                logger.info("robot %s's token appeared after the start: start record announced again", name)
             if alive and name in self.down:
                 self.down.discard(name)
                 self._event("robot_rejoined", robot=name)
@@ -227,7 +234,9 @@ class SimNode:
                 self._alive_cv.wait(timeout=min(left, 0.5))
         run = self.scenario.run
         self._started_run = True
-        self.link.publish(self.keys.start, Start(time.time(), run.dt, run.clock))
+        self._start_rec = Start(time.time(), run.dt, run.clock)
+        self.link.publish(self.keys.start, self._start_rec)
+        logger.info("every robot is up: run started (%s clock)", run.clock)
         if run.clock == "lockstep":
             k, ok, reason = self._lockstep()
         else:
@@ -370,6 +379,7 @@ def main(argv: list[str] | None = None) -> int:
     from copath.wire.session import ZenohLink  # noqa: PLC0415
 
     with ZenohLink.open(conf) as link:
+        link.sender = "sim"  # in every record's attachment (the recorder's accounts)
         if conf.authenticated:  # behind a secure router: step outside the grants and fail at once
             link.guard(AccessPolicy.for_scenario(keys, scenario), "sim")
         try:

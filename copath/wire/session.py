@@ -16,7 +16,9 @@ from __future__ import annotations
 
 import json
 import logging
+import os
 import socket
+import struct
 import threading
 from dataclasses import dataclass, field
 from typing import Any, Callable
@@ -30,7 +32,8 @@ from .trust import RejectLog, check_origin
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["SessionConfig", "open_session", "free_port", "ZenohLink", "loopback_endpoint"]
+__all__ = ["SessionConfig", "open_session", "free_port", "ZenohLink", "loopback_endpoint", "seq_attachment",
+           "read_seq_attachment"]
 
 MODES = ("client", "peer", "router")
 
@@ -135,6 +138,30 @@ def open_session(conf: SessionConfig) -> zenoh.Session:
 
 Callback = Callable[[str, Any], None]
 
+_SEQ = struct.Struct("<QQ")
+
+
+def seq_attachment(incarnation: int, seq: int, sender: str) -> bytes:
+    """The link-layer account of one record: (incarnation, sequence number from 1, sender).
+
+    Every record a :class:`ZenohLink` publishes carries it as its Zenoh attachment, outside
+    the record's schema, so the recorder counts what it received from each process and
+    finds the gaps (records lost on the way), and a process killed before its closing
+    account is still accounted for up to its last record (docs/faults.md, "Accounts that
+    survive a kill")."""
+    return _SEQ.pack(incarnation, seq) + sender.encode()
+
+
+def read_seq_attachment(data: bytes | None) -> tuple[int, int, str] | None:
+    """(incarnation, seq, sender) of :func:`seq_attachment`, or None (none, or not ours)."""
+    if not data or len(data) < _SEQ.size:
+        return None
+    inc, seq = _SEQ.unpack_from(data)
+    try:
+        return inc, seq, data[_SEQ.size:].decode()
+    except UnicodeDecodeError:
+        return None
+
 
 class ZenohLink:
     """Publishes and receives copath records on one session; counts what it published.
@@ -151,6 +178,11 @@ class ZenohLink:
         """False: every record goes out with ``session.put`` (under access control, eclipse-zenoh
         1.10 lets only the first put of a declared publisher through; docs/security.md)."""
         self.published = 0
+        self.sender = ""
+        """Who publishes through this link (``sim``, a robot's name): carried in every
+        record's attachment with :attr:`incarnation` and a sequence number (:func:`seq_attachment`)."""
+        self.incarnation = int.from_bytes(os.urandom(6), "little")
+        """This process's session, told apart from an earlier one of the same sender (a restart)."""
         self.reject_log = RejectLog()
         self._pubs: dict[str, Any] = {}
         self._keyexprs: dict[str, zenoh.KeyExpr] = {}
@@ -214,16 +246,17 @@ class ZenohLink:
                 ke = self._keyexprs.get(key)
                 if ke is None:
                     ke = self._keyexprs[key] = zenoh.KeyExpr(key)  # parsed once
-                self.session.put(ke, data, congestion_control=self._congestion(key))
                 self.published += 1
+                self.session.put(ke, data, congestion_control=self._congestion(key),
+                                 attachment=seq_attachment(self.incarnation, self.published, self.sender))
             return
         with self._lock:
             pub = self._pubs.get(key)
             if pub is None:
                 pub = self.session.declare_publisher(key, congestion_control=self._congestion(key))
                 self._pubs[key] = pub
-            pub.put(data)
             self.published += 1
+            pub.put(data, attachment=seq_attachment(self.incarnation, self.published, self.sender))
 
     def subscribe(self, key_expr: str, callback: Callback, on_reject: Callable[[str, str], None] | None = None) -> None:
         """Decode every sample on key_expr and call ``callback(key, record)``; a sample that
@@ -257,12 +290,18 @@ class ZenohLink:
 
         self._decls.append(self.session.declare_subscriber(key_expr, handler))
 
-    def subscribe_raw(self, key_expr: str, callback: Callable[[str, bytes], None]) -> None:
-        """Call ``callback(key, payload_bytes)`` for every sample (the recorder)."""
+    def subscribe_raw(self, key_expr: str, callback: Callable[..., None], attachment: bool = False) -> None:
+        """Call ``callback(key, payload_bytes)`` for every sample (the recorder); with
+        ``attachment``, ``callback(key, payload_bytes, attachment=bytes or None)``."""
         self._check("subscribe", key_expr)
 
         def handler(sample: zenoh.Sample) -> None:
             try:
+                if attachment:
+                    att = sample.attachment
+                    callback(str(sample.key_expr), sample.payload.to_bytes(),
+                             attachment=None if att is None else att.to_bytes())
+                    return
                 callback(str(sample.key_expr), sample.payload.to_bytes())
             except Exception as exc:
                 self.reject_log.add(str(sample.key_expr), f"callback failed: {exc!r}")

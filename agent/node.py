@@ -90,8 +90,9 @@ class AgentNode:
         self._sim_gone_at: float | None = None
         self._cpu_at_start = 0.0
         self._barrier = True
-        self.process_start = process_start_time()
-        """Wall time [s] this process started (a fork of the zygote: the fork)."""
+        self.process_start = time.time() if getattr(link, "synchronous", False) else process_start_time()
+        """Wall time [s] this process started (a fork of the zygote: the fork; in one
+        process, where a restart is a new node: the node's creation)."""
         self.joined_late = False
         """The run had started before this process: a restart (``run.on_robot_failure``)."""
         self._first_step_logged = False

@@ -57,11 +57,12 @@ def run_scenario(scenario: Scenario, duration_s: float | None = None, run_id: st
     """Run ``scenario`` in lockstep inside this process and return metrics and trace.
 
     ``on_tick(t, n)`` is called after each tick with the sim time reached [s] and the
-    number of messages published so far (progress display). ``kills`` ({robot: t [s]}):
+    number of messages published so far (progress display). ``kills`` ({robot: t [s]},
+    or {robot: [t, ...]} for several):
     the robot's process goes away at the first tick at or after t, as with SIGKILL (its
     link closes: its liveliness token disappears and it answers no more observations; the
     run's ``on_robot_failure`` applies). ``restarts`` ({robot: t}): a new process of that
-    robot (a new controller) starts then and joins from the current world state, as
+    robot (a new controller) starts then (or at each of several times) and joins from the current world state, as
     ``restart`` does for a fleet (docs/faults.md).
 
     Every peer message a node receives passes the receiver validation of a fleet's Zenoh
@@ -89,8 +90,12 @@ def run_scenario(scenario: Scenario, duration_s: float | None = None, run_id: st
 
     agents = {n: AgentNode(runtime(n), keys, bus.link(n), "lockstep") for n in scenario.robot_names}
     started: list[AgentNode] = []
-    faults = sorted([(round(t / dt), 0, n) for n, t in (kills or {}).items()]
-                    + [(round(t / dt), 1, n) for n, t in (restarts or {}).items()])
+    def _times(v) -> list[float]:  # one time, or several (a robot killed and restarted again and again)
+        return [float(x) for x in v] if isinstance(v, (list, tuple)) else [float(v)]
+
+    faults = sorted([(round(t / dt), 0, n) for n, ts in (kills or {}).items() for t in _times(ts)]
+                    + [(round(t / dt), 1, n) for n, ts in (restarts or {}).items() for t in _times(ts)])
+    current = dict(agents)  # each robot's newest process
     for _, _, n in faults:
         scenario.robot(n)  # an unknown robot fails here, naming it
 
@@ -100,8 +105,9 @@ def run_scenario(scenario: Scenario, duration_s: float | None = None, run_id: st
             if restart:
                 started.append(AgentNode(runtime(n), keys, bus.link(n), "lockstep"))
                 started[-1].start()
+                current[n] = started[-1]
             else:
-                agents[n].link.close()
+                current[n].link.close()
         if on_tick is not None:
             on_tick((k + 1) * dt, len(bus.records))
 

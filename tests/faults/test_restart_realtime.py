@@ -1,0 +1,142 @@
+"""A robot killed mid-run under ``run.on_robot_failure = "restart"`` commands again, under
+both clocks, over Zenoh and in one process (issue 24; docs/faults.md, "Restart").
+
+A restarted agent missed the simulator's start record; the simulator announces it again when
+the robot's token appears, so the new process synchronises its clock, finds its neighbours
+and steps. ``outage_s`` is measured from the commands in the log (the last before the loss to
+the first after it), the recorder's sequence-number accounts survive the kill (nothing lost,
+the dead process's count reconstructed), and the new process's log says when it started,
+synchronised and first stepped."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import signal
+import threading
+import time
+
+import pytest
+
+from benchmarks.chaos import robot_pid
+from orchestrator.mcaplog import read_log
+from tests.conftest import config
+
+pytestmark = [pytest.mark.integration, pytest.mark.faults, pytest.mark.timeout(400)]
+
+
+def _wait_started(p, out, limit_s=150.0) -> None:
+    deadline = time.monotonic() + limit_s
+    log = out / "logs" / "sim.log"
+    while not (log.is_file() and "run started" in log.read_text(errors="replace")):
+        assert p.poll() is None and time.monotonic() < deadline, p.stderr.read().decode()[-2000:]
+        time.sleep(0.05)
+
+
+def _command_gap(records, name: str) -> tuple[float, float | None]:
+    """(last command time before the simulator's robot_lost of ``name``, first after it)
+    from the log, in log order."""
+    before = after = None
+    seen_loss = False
+    for _, key, r in records:
+        kind = getattr(r, "TYPE", "")
+        if kind == "event" and r.source == "sim" and r.what == "robot_lost" and r.detail.get("robot") == name:
+            seen_loss = True
+        elif kind == "cmd" and key.endswith(f"/robot/{name}/cmd"):
+            if not seen_loss:
+                before = float(r.t)
+            elif after is None:
+                after = float(r.t)
+    assert seen_loss, f"no robot_lost event for {name}"
+    return before, after
+
+
+@pytest.mark.parametrize("clock", ["realtime", "lockstep"])
+def test_a_killed_robot_restarts_and_commands_again_over_zenoh(tmp_path, procs, clock):
+    p = procs.start(["-m", "orchestrator", "run", str(config("e5.5-")), "--out", str(tmp_path), "--run-id", "rsrt",
+                     "--duration", "30" if clock == "realtime" else "60", "-q", "--no-plots",
+                     "--set", 'run.on_robot_failure="restart"', "--set", f'run.clock="{clock}"'])
+    _wait_started(p, tmp_path)
+    time.sleep(8.0 if clock == "realtime" else 3.0)
+    pid = robot_pid("rsrt", "r2")
+    assert pid is not None
+    os.kill(pid, signal.SIGKILL)
+    assert p.wait(timeout=300) == 0, p.stderr.read().decode()[-3000:]
+    m = json.loads((tmp_path / "metrics.json").read_text())
+    r2 = m["robots"]["r2"]
+    assert m["ok"] and r2["restarts"] == 1 and r2["outage_open"] is False
+    log = read_log(tmp_path / "run.mcap")
+    before, after = _command_gap(log.records, "r2")
+    assert after is not None, "r2 never commanded again"
+    assert r2["outage_s"] == pytest.approx(after - before, abs=1e-6)
+    assert 0 < r2["outage_s"] < 10.0
+    back = [r for _, _, r in log.records if getattr(r, "TYPE", "") == "event" and r.what == "rejoined_stepping"]
+    assert [r.source for r in back] == ["r2"]
+    assert 0 < back[0].detail["since_process_start_s"] < 20.0  # the orchestrator's rejoin bound
+    # the accounts survive the kill: nothing lost, the killed process counted to its last record
+    f = m["fleet"]
+    assert f["messages_lost"] == 0 and f["accounts_reconstructed"] == 1
+    assert f["messages_published"] == f["messages_recorded"]
+    if clock == "realtime":
+        assert f["deadline_miss_rate"] is not None and r2["deadline_misses"] is not None
+    text = (tmp_path / "logs" / "r2.restart1.log").read_text()
+    for said in ("started", "synchronised", "first step", "rejoined a run in progress"):
+        assert said in text, text
+
+
+def test_a_killed_robot_restarts_and_commands_again_in_one_process():
+    from copath.scenario import load_scenario
+    from orchestrator.inprocess import run_scenario
+
+    scen = load_scenario(config("e5.5-"))
+    scen = dataclasses.replace(scen, run=dataclasses.replace(scen.run, on_robot_failure="restart"))
+    res = run_scenario(scen, duration_s=30.0, kills={"r2": [6.0, 16.0]}, restarts={"r2": [7.0, 17.5]})
+    assert res.ok
+    r2 = res.metrics["robots"]["r2"]
+    assert r2["restarts"] == 2 and r2["outage_open"] is False
+    # two outages from the commands: 6.0 -> 7.1 and 16.0 -> 17.6 (a tick of 0.1 s each side)
+    assert r2["outage_s"] == pytest.approx(1.1 + 1.6, abs=0.21)
+    back = [r for _, _, r in res.records if getattr(r, "TYPE", "") == "event" and r.what == "rejoined_stepping"]
+    assert [r.source for r in back] == ["r2", "r2"]
+    assert res.metrics["fleet"]["collisions"] == 0
+    cmds = [r.t for _, k, r in res.records if k.endswith("/robot/r2/cmd")]
+    assert max(cmds) > 29.0  # it drives to the end
+
+
+def test_a_restarted_robot_past_the_rejoin_bound_fails_the_run_loudly(tmp_path, capfd):
+    """A bound too short for any restart: the robot is lost, with an event, a terminal line,
+    and ``ok: false`` naming it."""
+    from copath.scenario import load_scenario
+    from orchestrator.fleet import RunOptions, run_fleet
+
+    scen = load_scenario(config("e5.5-"))
+    scen = dataclasses.replace(scen, run=dataclasses.replace(scen.run, on_robot_failure="restart", clock="realtime",
+                                                             duration_s=20.0))
+    victim: list[int] = []
+
+    def kill_r2() -> None:
+        deadline = time.monotonic() + 120
+        log = tmp_path / "logs" / "sim.log"
+        while time.monotonic() < deadline:
+            if log.is_file() and "run started" in log.read_text(errors="replace"):
+                break
+            time.sleep(0.05)
+        time.sleep(5.0)
+        pid = robot_pid("rbound", "r2")
+        if pid is not None:
+            victim.append(pid)
+            os.kill(pid, signal.SIGKILL)
+
+    th = threading.Thread(target=kill_r2, daemon=True)
+    th.start()
+    out = run_fleet(scen, RunOptions(out_dir=tmp_path, run_id="rbound", progress=False, rejoin_timeout_s=0.001,
+                                     wall_timeout_s=200))
+    th.join(timeout=5)
+    assert victim, "r2 was not found to kill"
+    assert not out.ok and "robot r2 never came back" in out.reason
+    err = capfd.readouterr().err
+    assert "robot r2 sent no command" in err
+    ev = [r for _, k, r in out.records if getattr(r, "TYPE", "") == "event" and r.what == "rejoin_timeout"]
+    assert [r.detail["robot"] for r in ev] == ["r2"]
+    assert out.metrics["ok"] is False

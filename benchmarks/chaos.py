@@ -53,7 +53,7 @@ REPO = pathlib.Path(__file__).resolve().parents[1]
 if str(REPO) not in sys.path:
     sys.path.insert(0, str(REPO))
 
-from copath.scenario import Partition, Scenario, Silence, load_scenario  # noqa: E402
+from copath.scenario import Scenario, load_scenario  # noqa: E402
 from copath.slots import track_coordinate, wrap_near  # noqa: E402
 from copath.wire.keys import Keys  # noqa: E402
 from copath.wire.messages import Command, Event, Truth  # noqa: E402
@@ -97,16 +97,20 @@ def schedule(names: list[str], duration_s: float, n: int, seed: int, kinds=KINDS
     return out
 
 
-def with_network_faults(scenario: Scenario, faults: list[Fault], burst: bool) -> Scenario:
-    """The scenario with the silence and partition windows of ``faults`` (and bursts)."""
-    net = scenario.network
-    sil = list(net.silence) + [Silence(f.robot, f.t, f.t + f.hold_s) for f in faults if f.kind == "silence"]
-    names = scenario.robot_names
-    par = list(net.partitions) + [Partition(tuple((f.robot, o) for o in names if o != f.robot), f.t, f.t + f.hold_s)
-                                  for f in faults if f.kind == "partition"]
+def with_faults(scenario: Scenario, faults: list[Fault], burst: bool, **run: Any) -> Scenario:
+    """The scenario with ``run`` keys replaced and the silence and partition windows of
+    ``faults`` (and loss bursts) added, through its raw tables: every process of a fleet
+    loads the same (``copath run`` writes them to the run's scenario.json)."""
+    net = dict(scenario.raw.get("network") or {})
+    sil = list(net.get("silence", [])) + [{"robot": f.robot, "start_s": f.t, "end_s": f.t + f.hold_s}
+                                          for f in faults if f.kind == "silence"]
+    edges = scenario.edges()
+    par = list(net.get("partitions", [])) + [  # every link of the robot's in the communication graph
+        {"links": [list(e) for e in edges if f.robot in e], "start_s": f.t, "end_s": f.t + f.hold_s}
+        for f in faults if f.kind == "partition" and any(f.robot in e for e in edges)]
     extra = {"burst_p_gb": 0.02, "burst_p_bg": 0.3, "burst_loss": 1.0} if burst else {}
-    return dataclasses.replace(scenario, network=dataclasses.replace(net, silence=tuple(sil), partitions=tuple(par),
-                                                                    **extra))
+    network = {**({"silence": sil} if sil else {}), **({"partitions": par} if par else {}), **extra}
+    return scenario.with_overrides(run=run, **({"network": network} if network else {}))
 
 
 # -- injection (separate processes) ----------------------------------------------------
@@ -166,14 +170,18 @@ class Injector(threading.Thread):
         self.t0: float | None = None
         self.frozen: list[int] = []
 
-    def _started(self) -> bool:
+    def _run_started(self) -> bool:
+        """The simulator's "run started" line; a simulator that does not log it (before issue
+        24): the log's first chunk of records (256 KiB; a few seconds late)."""
         try:
-            return "run started" in (self.out / "logs" / "sim.log").read_text(errors="replace")
+            if "run started" in (self.out / "logs" / "sim.log").read_text(errors="replace"):
+                return True
+            return (self.out / "run.mcap").stat().st_size > 64 * 1024
         except OSError:
             return False
 
     def run(self) -> None:
-        while not self._started():
+        while not self._run_started():
             if self.stop_event.wait(0.05):
                 return
         self.t0 = time.time()
@@ -353,8 +361,7 @@ def prepare(scenario: Scenario | str, clock: str, policy: str, minutes: float, n
     scen = load_scenario(_config(scenario)) if isinstance(scenario, str) else scenario
     duration = 60.0 * minutes
     faults = schedule(list(scen.robot_names), duration, n_faults, seed, kinds)
-    run = dataclasses.replace(scen.run, clock=clock, on_robot_failure=policy, duration_s=duration)
-    return with_network_faults(dataclasses.replace(scen, run=run), faults, burst), faults
+    return with_faults(scen, faults, burst, clock=clock, on_robot_failure=policy, duration_s=duration), faults
 
 
 def _config(name: str) -> pathlib.Path:
@@ -409,7 +416,8 @@ def soak_inprocess(scenario: Scenario, faults: list[Fault], restart_after_s: flo
             f.note = "robot still down"
             continue
         kills.append((f.robot, f.t))
-        f.wall_ns = int(round(f.t * 1e9))
+        # the link closes after tick round(t / dt): the robot misses the next one (log time = sim time)
+        f.wall_ns = int(round((round(f.t / scenario.run.dt) + 1) * scenario.run.dt * 1e9)) - 1
         if scenario.run.on_robot_failure == "restart":
             restarts.append((f.robot, f.t + restart_after_s))
             busy[f.robot] = f.t + restart_after_s

@@ -356,6 +356,7 @@ class AgentNode:
         """Start and serve the run on this thread until it ends (threaded links)."""
         self.start()
         if self.clock == "lockstep":
+            waited = told = time.monotonic()
             while True:
                 try:
                     obs = self.obs_q.get(timeout=0.25)
@@ -363,6 +364,10 @@ class AgentNode:
                     if self._end_due():
                         break
                     self._watchdog()
+                    if self.latest_obs is None and time.monotonic() - told >= WAIT_LOG_S:  # say what it waits for
+                        told = time.monotonic()
+                        logger.warning("no observation yet after %.0f s (waiting on %s; the simulator starts the "
+                                       "run when every robot's token is up)", told - waited, self.keys.obs(self.rt.name))
                     continue
                 if obs is None:
                     break

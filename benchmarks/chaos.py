@@ -273,7 +273,8 @@ def grade(records, scenario: Scenario, run_id: str, faults: list[Fault], metrics
     onsets = np.concatenate([overlap[:1].sum(axis=1), np.logical_and(overlap[1:], ~overlap[:-1]).sum(axis=1)])
     rows, out_masks = [], {n: np.zeros(len(t), dtype=bool) for n in names}
     for f in faults:
-        row: dict[str, Any] = {"t": f.t, "kind": f.kind, "robot": f.robot, "hold_s": f.hold_s, "note": f.note}
+        row: dict[str, Any] = {"t": f.t, "kind": f.kind, "robot": f.robot, "hold_s": f.hold_s, "note": f.note,
+                               "wall_ns": f.wall_ns}
         if f.kind in PROCESS_KINDS:
             if f.wall_ns is None:
                 row.update(detect_s=None, back_s=None, restart_to_cmd_s=None, collisions=None, recoord_s=None)
@@ -284,7 +285,10 @@ def grade(records, scenario: Scenario, run_id: str, faults: list[Fault], metrics
                     and e.detail.get("robot") == f.robot and ns >= f.wall_ns and e.detail.get("cause") != "silence"]
             row["detect_s"] = round((lost[0] - f.wall_ns) / 1e9, 3) if lost and (f.kind == "kill" or lost[0] - f.wall_ns
                                                                                 < (f.hold_s + 1.0) * 1e9) else None
-            after = [ns for ns, _ in cmds.get(f.robot, []) if ns > f.wall_ns + (0 if f.kind == "kill" else 1e6)]
+            # back: its first command after the loss was seen (a command in flight at the kill is
+            # not a return), or after the stall's end
+            since = lost[0] if lost and f.kind != "stall" else f.wall_ns + int(f.hold_s * 1e9)
+            after = [ns for ns, _ in cmds.get(f.robot, []) if ns > since]
             back_ns = after[0] if after else None
             row["back_s"] = None if back_ns is None else round((back_ns - f.wall_ns) / 1e9, 3)
             stepping = [e for ns, e in events if e.what == "rejoined_stepping" and e.source == f.robot
@@ -301,6 +305,11 @@ def grade(records, scenario: Scenario, run_id: str, faults: list[Fault], metrics
             row["restart_to_cmd_s"] = None
         window = (t >= t_f - 1e-9) & (t <= t_back + 1e-9)
         row["collisions"] = int(onsets[window].sum())
+        # the victim's nearest robot from the fault to 5 s after its return (a restarted robot
+        # starts with an empty safety picture: docs/faults.md)
+        near = (t >= t_f - 1e-9) & (t <= t_back + 5.0)
+        mine = [j for j, (a, b) in enumerate(zip(*iu)) if f.robot in (names[a], names[b])]
+        row["victim_min_sep_m"] = round(float(D[near][:, mine].min()), 3) if near.any() and mine else None
         if f.kind in ("kill", "stop"):
             out_masks[f.robot] |= window
         row["_t_back"] = t_back
@@ -332,6 +341,8 @@ def grade(records, scenario: Scenario, run_id: str, faults: list[Fault], metrics
         "collisions": fleet.get("collisions"),
         "min_separation_m": fleet.get("min_separation_m"),
         "min_separation_target_m": target,
+        "victim_min_sep_m": min((r["victim_min_sep_m"] for r in rows if r.get("victim_min_sep_m") is not None),
+                                default=None),
         "restart_to_cmd_max_s": max(restarts) if restarts else None,
         "restarts_over_2s": sum(1 for x in restarts if x > 2.0),
         "not_back": sum(1 for r in rows if r["kind"] in ("kill", "stop") and r.get("back_s") is None),
@@ -440,10 +451,31 @@ def _run_inprocess(run_scenario, scenario, kills, restarts):
     return run_scenario(scenario, kills=k, restarts=r)
 
 
+def regrade(out: pathlib.Path, result: dict) -> dict:
+    """Grade a soak's run directory again from its log and its printed result (``--json``);
+    a row without ``wall_ns`` (an older result) takes it from its ``t_sim`` on the truth."""
+    from orchestrator.mcaplog import read_log  # noqa: PLC0415
+    from orchestrator.metrics import metrics_from_log  # noqa: PLC0415
+
+    out = pathlib.Path(out)
+    log = read_log(out / "run.mcap")
+    scen = load_scenario(out / "scenario.json")
+    truth = sorted(((ns, r) for ns, _, r in log.records if isinstance(r, Truth)), key=lambda x: x[1].k)
+    tt = np.array([r.t for _, r in truth])
+    ww = np.array([ns for ns, _ in truth], dtype=float)
+    faults = []
+    for r in result["faults"]:
+        ns = r.get("wall_ns")
+        if ns is None and r["kind"] in PROCESS_KINDS and r.get("t_sim") is not None:
+            ns = int(np.interp(r["t_sim"], tt, ww))
+        faults.append(Fault(r["t"], r["kind"], r["robot"], r["hold_s"], ns, note=r.get("note", "")))
+    return grade(log.records, scen, log.run_id, faults, metrics_from_log(out / "run.mcap"))
+
+
 def print_table(title: str, result: dict, file=sys.stdout) -> None:
     print(f"\n{title}", file=file)
     print(f"{'t':>7} {'t_sim':>7} {'kind':<9} {'robot':<7} {'hold':>5} {'detect':>7} {'back':>7} {'restart>cmd':>11} "
-          f"{'coll':>4} {'recoord':>7}  note", file=file)
+          f"{'coll':>4} {'recoord':>7} {'vsep':>6}  note", file=file)
 
     def fmt(v, w, p=2):
         return f"{'-':>{w}}" if v is None else f"{v:>{w}.{p}f}" if isinstance(v, float) else f"{v:>{w}}"
@@ -451,7 +483,8 @@ def print_table(title: str, result: dict, file=sys.stdout) -> None:
     for r in result["faults"]:
         print(f"{r['t']:>7.1f} {fmt(r.get('t_sim'), 7, 1)} {r['kind']:<9} {r['robot']:<7} {r['hold_s']:>5.1f} "
               f"{fmt(r.get('detect_s'), 7)} {fmt(r.get('back_s'), 7)} {fmt(r.get('restart_to_cmd_s'), 11)} "
-              f"{fmt(r.get('collisions'), 4)} {fmt(r.get('recoord_s'), 7, 1)}  {r.get('note', '')}", file=file)
+              f"{fmt(r.get('collisions'), 4)} {fmt(r.get('recoord_s'), 7, 1)} {fmt(r.get('victim_min_sep_m'), 6, 3)}"
+              f"  {r.get('note', '')}", file=file)
     print("totals: " + ", ".join(f"{k}={v}" for k, v in result["totals"].items()), file=file)
 
 
@@ -468,7 +501,13 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--inprocess", action="store_true", help="one process, lockstep, simulated kills")
     p.add_argument("--out", default=None, help="run directory [a new temporary one]")
     p.add_argument("--json", action="store_true")
+    p.add_argument("--regrade", default=None, metavar="RESULT.json",
+                   help="grade the run in --out again from its log and this printed --json result")
     a = p.parse_args(argv)
+    if a.regrade:
+        res = regrade(pathlib.Path(a.out), json.loads(pathlib.Path(a.regrade).read_text()))
+        print(json.dumps(res, indent=1, default=str)) if a.json else print_table(f"regraded: {a.out}", res)
+        return 0
     kinds = tuple(k.strip() for k in a.kinds.split(",") if k.strip())
     bad = [k for k in kinds if k not in KINDS]
     if bad:

@@ -223,8 +223,13 @@ class SimNode:
     def run(self) -> bool:
         self.start()
         deadline = time.monotonic() + self.start_timeout_s
+        told = time.monotonic()
         with self._alive_cv:
             while not set(self.names) <= self.alive:
+                if time.monotonic() - told >= 5.0:  # say what it waits for, every few seconds
+                    told = time.monotonic()
+                    logger.info("waiting for the tokens of robots %s (%.0f s left; they build their controllers)",
+                                sorted(set(self.names) - self.alive), deadline - told)
                 left = deadline - time.monotonic()
                 if left <= 0:
                     missing = sorted(set(self.names) - self.alive)

@@ -55,7 +55,7 @@ def _command_gap(records, name: str) -> tuple[float, float | None]:
 @pytest.mark.parametrize("clock", ["realtime", "lockstep"])
 def test_a_killed_robot_restarts_and_commands_again_over_zenoh(tmp_path, procs, clock):
     p = procs.start(["-m", "orchestrator", "run", str(config("e5.5-")), "--out", str(tmp_path), "--run-id", "rsrt",
-                     "--duration", "30" if clock == "realtime" else "60", "-q", "--no-plots",
+                     "--duration", "36" if clock == "realtime" else "60", "-q", "--no-plots",
                      "--set", 'run.on_robot_failure="restart"', "--set", f'run.clock="{clock}"'])
     _wait_started(p, tmp_path)
     time.sleep(8.0 if clock == "realtime" else 3.0)
@@ -111,8 +111,8 @@ def test_a_restarted_robot_past_the_rejoin_bound_fails_the_run_loudly(tmp_path, 
     from orchestrator.fleet import RunOptions, run_fleet
 
     scen = load_scenario(config("e5.5-"))
-    scen = dataclasses.replace(scen, run=dataclasses.replace(scen.run, on_robot_failure="restart", clock="realtime",
-                                                             duration_s=20.0))
+    scen = scen.with_overrides(run={"on_robot_failure": "restart", "clock": "realtime", "duration_s": 20.0,
+                                    "settle_s": 10.0})  # the processes load these raw tables
     victim: list[int] = []
 
     def kill_r2() -> None:

@@ -289,7 +289,8 @@ class AgentNode:
         its first command, docs/faults.md)."""
         self._first_step_logged = True
         since = time.time() - self.process_start
-        late = self.joined_late or obs.k > 0
+        # realtime: the start record is older than the process; lockstep: a first tick after 0
+        late = self.joined_late if self.clock == "realtime" else obs.k > 0
         logger.info("first step at run time %.2f s (tick %d), %.2f s after the process started%s", now, obs.k, since,
                     "; rejoined a run in progress" if late else "")
         if late:

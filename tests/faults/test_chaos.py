@@ -14,7 +14,7 @@ import pytest
 
 from benchmarks.chaos import _cmdline, prepare, soak_fleet, soak_inprocess
 
-pytestmark = [pytest.mark.integration, pytest.mark.faults]
+pytestmark = [pytest.mark.faults]
 
 SEED = 3
 COORD_WITHIN_S = 20.0
@@ -47,6 +47,7 @@ def _assert_goals(res: dict, target: float, restart_bound_s: float | None) -> No
 
 
 @pytest.mark.slow
+@pytest.mark.fleet
 @pytest.mark.timeout(600)
 def test_a_realtime_fleet_killed_six_times_comes_back_every_time(tmp_path):
     scen, faults = prepare("e5.5-", "realtime", "restart", 2.0, 6, SEED, kinds=("kill",))

@@ -23,7 +23,7 @@ from benchmarks.chaos import robot_pid
 from orchestrator.mcaplog import read_log
 from tests.conftest import config
 
-pytestmark = [pytest.mark.integration, pytest.mark.faults, pytest.mark.timeout(400)]
+pytestmark = [pytest.mark.faults, pytest.mark.timeout(400)]
 
 
 def _wait_started(p, out, limit_s=150.0) -> None:
@@ -52,6 +52,7 @@ def _command_gap(records, name: str) -> tuple[float, float | None]:
     return before, after
 
 
+@pytest.mark.fleet
 @pytest.mark.parametrize("clock", ["realtime", "lockstep"])
 def test_a_killed_robot_restarts_and_commands_again_over_zenoh(tmp_path, procs, clock):
     p = procs.start(["-m", "orchestrator", "run", str(config("e5.5-")), "--out", str(tmp_path), "--run-id", "rsrt",
@@ -104,6 +105,7 @@ def test_a_killed_robot_restarts_and_commands_again_in_one_process():
     assert max(cmds) > 29.0  # it drives to the end
 
 
+@pytest.mark.fleet
 def test_a_restarted_robot_past_the_rejoin_bound_fails_the_run_loudly(tmp_path, capfd):
     """A bound too short for any restart: the robot is lost, with an event, a terminal line,
     and ``ok: false`` naming it."""

@@ -34,9 +34,9 @@ import numpy as np
 from copath.ros2.frames import quaternion_from_yaw
 from copath.scenario import parse_scenario
 from copath.wire.keys import Keys
-from copath.wire.messages import PeerEnvelope, Telemetry, Truth
+from copath.wire.messages import PeerEnvelope, Telemetry, Truth, WireError, unpack
 
-from .mcaplog import read_log
+from .mcaplog import iter_raw, read_metadata
 
 __all__ = ["export_ros2", "RosTopics", "MAP_FRAME"]
 
@@ -146,14 +146,24 @@ def export_ros2(run_mcap: str | pathlib.Path, out_mcap: str | pathlib.Path) -> d
     from rosbags.typesys import Stores, get_typestore  # noqa: PLC0415
 
     wall0 = time.perf_counter()
-    log = read_log(run_mcap)
-    meta = log.metadata
+    meta = read_metadata(run_mcap)
     raw = json.loads(meta["scenario"]["json"])
     scenario = parse_scenario(raw, base_dir=None, source=str(raw.get("_source", "")))
     keys = Keys(meta["copath"]["run_id"])
     store = get_typestore(Stores.ROS2_KILTED)
     counts: dict[str, int] = {}
-    t0_ns = min((t for t, _, _ in log.records), default=0)
+    # only the records the topics come from are decoded (not observations, commands, ...)
+    records = []
+    t0_ns = None
+    for t, key, data in iter_raw(run_mcap):
+        t0_ns = t if t0_ns is None else min(t0_ns, t)
+        rel = keys.relative(key)
+        if rel == "sim/truth" or rel.endswith("/telemetry") or rel.startswith("peer/"):
+            try:
+                records.append((key, unpack(data)))
+            except WireError:
+                continue
+    t0_ns = t0_ns or 0
     topics = RosTopics(scenario, keys, base=t0_ns * 1e-9)
     with open(out_mcap, "wb") as fh:
         writer = Writer(fh)
@@ -167,7 +177,7 @@ def export_ros2(run_mcap: str | pathlib.Path, out_mcap: str | pathlib.Path) -> d
                 counts[topic] = counts.get(topic, 0) + 1
 
         put(topics.reference_paths())
-        for _, key, rec in log.records:
+        for key, rec in records:
             put(topics.feed(key, rec))
         writer.finish()
     wall = time.perf_counter() - wall0

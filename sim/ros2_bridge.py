@@ -47,7 +47,7 @@ from copath.scenario import ConfigError, Scenario, load_scenario
 from copath.wire.cli import add_config_arguments, session_config_from_args
 from copath.wire.keys import Keys
 from copath.wire.link import Link
-from copath.wire.messages import Command, Obs, Stats
+from copath.wire.messages import Command, End, Obs, Stats
 
 from .node import SimNode
 
@@ -89,6 +89,11 @@ class BridgeNode(SimNode):
         self.out = {k: np.zeros(m) for k, m in n.items()}
         """What was last published (acceleration-limited towards ``requested``)."""
         self.out_at = {k: 0.0 for k in n}
+        self.cmd_at: dict[str, float] = {}
+        """When each agent's latest command arrived (monotonic)."""
+        self.stale_s = max(0.5, 5.0 * scenario.run.dt)
+        """An agent silent this long has its robot's command set to zero (a cut-off or starved
+        agent must not leave its robot driving on its last command) [s]."""
         self.violated = {k: False for k in n}
         self.held: set[str] = set()
         """Robots held at zero: lost pose, agent gone, or the run is over."""
@@ -103,7 +108,7 @@ class BridgeNode(SimNode):
         """Pose stamp -> cmd_vel publish of every agent command [s] (same clock: same machine)."""
         self.counts = {"poses": {k: 0 for k in n}, "frame_rejects": {k: 0 for k in n},
                        "saturated": {k: 0 for k in n}, "commands": {k: 0 for k in n},
-                       "held_commands": {k: 0 for k in n}, "twists": 0}
+                       "held_commands": {k: 0 for k in n}, "stale_stops": {k: 0 for k in n}, "twists": 0}
         self.stopped_at: float | None = None
         """Monotonic time at which the first zero Twists went out."""
 
@@ -154,6 +159,7 @@ class BridgeNode(SimNode):
                 self.stale += 1
                 return
             self.requested[name] = np.asarray(sat, dtype=float)
+            self.cmd_at[name] = time.monotonic()
             self.violated[name] = bool(viol)
             self.counts["saturated"][name] += int(viol)
             self.counts["commands"][name] += 1
@@ -323,6 +329,11 @@ class BridgeNode(SimNode):
             if t >= next_send - 1e-9:
                 with self._lock:
                     for name in self.names:
+                        if name in self.cmd_at and now - self.cmd_at[name] > self.stale_s:
+                            del self.cmd_at[name]  # its agent went quiet: stop the robot, say so once
+                            self.requested[name] = np.zeros_like(self.requested[name])
+                            self.counts["stale_stops"][name] += 1
+                            logger.warning("robot %s: no command for %.2f s; commanding zero", name, self.stale_s)
                         if now - self.out_at[name] >= period * 0.5:
                             self._send(name, now)
                 next_send += period
@@ -336,8 +347,6 @@ class BridgeNode(SimNode):
         self.stop_robots()
         self._closing = True
         self._reject_event(closing=True)
-        from copath.wire.messages import End  # noqa: PLC0415
-
         self.link.publish(self.keys.end, End(k, float(self.world.t), reason, ok))
         lat = sorted(self.latency_s)
         counters = {"missed_ticks": self.missed, "stale_commands": self.stale, "physics_overruns": self.overruns,

@@ -98,7 +98,7 @@ def test_omni_chapter4_over_a_ros2_robot(procs, ros_env, tmp_path):
     assert all(len(t["cmd"]) == 3 for t in tw) and any(abs(t["cmd"][1]) > 0.05 for t in tw)
 
 
-@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
 def test_interrupted_run_stops_every_robot_within_100_ms(procs, ros_env, tmp_path, sig):
     """Ctrl-C or SIGTERM to `copath run`: every robot receives a zero Twist within 100 ms
     and zeros for half a second after."""

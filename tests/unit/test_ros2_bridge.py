@@ -98,3 +98,17 @@ def test_observations_go_out_only_during_the_run(bridge):
     node.stop_robots()
     node.on_pose("r1", (0.0, 0.0, 0.0), 1.0, "r1/odom")
     assert len([r for _, r in seen if isinstance(r, Obs)]) == 1  # none after the end
+
+
+def test_an_agent_that_goes_quiet_has_its_robot_stopped(bridge):
+    node, sent, _ = bridge
+    for n in node.names:
+        node.on_pose(n, (0.0, 0.0, 0.0), 1.0, "map" if n == "r3" else f"{n}/odom")
+    node.duration_s = 0.2 + node.stale_s
+    node._started_run = True
+    node._on_cmd("copath/t/robot/r1/cmd", Command(0, 0.0, [0.3, 0.0]))
+    k, ok, _ = node._realtime()  # r1's agent says nothing more for the rest of the run
+    assert ok and node.counts["stale_stops"]["r1"] == 1
+    assert list(node.requested["r1"]) == [0.0, 0.0]  # towards zero, as fast as its a_max allows
+    v = [c[0] for n, c in sent if n == "r1"]
+    assert v[-1] < max(v) and all(b <= a + 1e-12 for a, b in zip(v[v.index(max(v)):], v[v.index(max(v)) + 1:]))

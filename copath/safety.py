@@ -387,6 +387,11 @@ TUBE_MARGIN_M = 0.005
 """The robot keeps this far inside its committed tubes [m] (chosen: the applied velocity ramps
 within a period, at most a_max dt^2 / 2 = 1.5 mm at 0.3 m/s^2 and 0.1 s)."""
 
+CLEAR_MARGIN = 1e-9
+"""Margin by which the pass-through test of :meth:`SafetyFilter.filter` on floats must hold
+before the filter skips building its rows [m/s] (many orders above the rounding of a row,
+so the test never passes where the full one fails)."""
+
 HARD, LOOKAHEAD, TUBE = 0, 1, 2
 """Slack of a row: the centre rows', the look-ahead rows' or the committed tube's."""
 _NS = 3  # slack variables
@@ -721,9 +726,13 @@ class SafetyFilter:
         that breaks symmetric deadlocks, barely touches a robot that is only slowed a little,
         and keeps lockstep runs reproducible."""
         u_nom = np.asarray(nominal, dtype=float).reshape(self.m)
-        A, rhs, soft, h_min = self.constraints(pose, neighbours, ranges, angles, tubes)
         u_sat, _ = self.model.saturate(u_nom)  # what the robot would do with the nominal command
         cap_ok = self._cap is None or self.centre_speed(u_sat) <= self._cap * (1 + 1e-9)
+        if cap_ok:
+            h_min = self._clear(pose, neighbours, ranges, angles, tubes, u_sat)
+            if h_min is not None:
+                return SafetyResult(u_nom, False, 0.0, 0.0, h_min)
+        A, rhs, soft, h_min = self.constraints(pose, neighbours, ranges, angles, tubes)
         if cap_ok and np.all(A @ u_sat >= rhs - 1e-12):
             return SafetyResult(u_nom, False, 0.0, 0.0, h_min)
         th = float(pose[2])
@@ -741,6 +750,93 @@ class SafetyFilter:
         if not ok:  # stopping satisfies every barrier with h >= 0
             u = np.zeros(self.m)
         return SafetyResult(u, True, float(np.linalg.norm(u - u_sat)), sigma, h_min, ok, biased)
+
+    def _clear(self, pose, neighbours: Sequence[Neighbour], ranges, angles, tubes, u) -> float | None:
+        """The pass-through test of :meth:`filter` without building the QP's rows: the smallest
+        centre barrier (as :meth:`constraints` returns it, the same number) when the saturated
+        nominal ``u`` meets every row of :meth:`constraints` by more than ``CLEAR_MARGIN``, else
+        None (then :meth:`filter` builds the rows and decides as before).
+
+        The same rows as :meth:`constraints`, on Python floats for the neighbours (a handful per
+        robot, where numpy's per-call cost dominates) and with numpy for the committed tubes. A
+        row evaluated here may differ from the matrix product in the last bits; the margin,
+        many orders above that, makes this test pass only where :meth:`constraints` passes too,
+        so the filter's decisions and commands are those of the full test (docs/performance.md,
+        P15). Range readings are left to the full test."""
+        cfg = self.config
+        if cfg.use_ranges and ranges is not None and angles is not None:
+            return None
+        x, y, th = float(pose[0]), float(pose[1]), float(pose[2])
+        c, s = math.cos(th), math.sin(th)
+        if self.omni:
+            u0, u1 = float(u[0]), float(u[1])
+            px, py = c * u0 - s * u1, s * u0 + c * u1  # G(theta) u, the centre's velocity
+            dir_max = max(dx * u0 + dy * u1 for dx, dy, _ in _DIRS.tolist())  # max_k c_k^T (u, v)
+        else:
+            v, w = float(u[0]), float(u[1])
+            px, py = c * v, s * v
+            lk = self.lookahead
+            zx, zy = c * v - lk * s * w, s * v + lk * c * w  # T(theta) u, the look-ahead point's velocity
+            z0, z1 = x + lk * c, y + lk * s
+        half = 0.5 * self.gamma
+        a_max = self.model.a_max if cfg.braking else None
+        a_dt = 0.5 * a_max * self.dt if a_max is not None else 0.0
+        h_min = math.inf
+        for nb in neighbours:
+            if nb.age > cfg.max_age_s:
+                continue
+            spread = _spread(nb)
+            dx, dy = x - nb.position[0], y - nb.position[1]
+            norm = math.sqrt(dx * dx + dy * dy)
+            inv = max(norm, 1e-9)
+            nx, ny = dx / inv, dy / inv
+            h = norm - (self.r_eff + nb.radius + cfg.margin_m + spread)
+            h_min = min(h_min, h)
+            hp = max(h, 0.0)
+            if nb.committed is not None:
+                cvx, cvy, grow, acc = nb.committed
+                rate = self.gamma * hp
+                if a_max is not None:
+                    a_rel = max(a_max - acc, 0.1 * a_max)
+                    ar_dt = 0.5 * a_rel * self.dt
+                    rate = min(rate, math.sqrt(ar_dt**2 + 2.0 * a_rel * hp) - ar_dt)
+                rhs = nx * cvx + ny * cvy + grow - rate
+            elif a_max is not None:
+                rhs = -min(half * hp, math.sqrt(a_dt**2 + a_max * hp) - a_dt)
+            else:
+                rhs = -half * hp
+            kappa = 2.0 * math.sin(0.5 * math.asin(min(1.0, spread / inv)))
+            if self.omni:
+                lhs = nx * px + ny * py - (kappa / _COS_DIR * dir_max if kappa > 0 else 0.0)
+            else:
+                lhs = (nx * c + ny * s) * v - kappa * abs(v)
+            if not lhs >= rhs + CLEAR_MARGIN:
+                return None
+            if not self.omni and lk:
+                spread_l = 0.0 if nb.predicted else spread
+                ex, ey = z0 - nb.position[0], z1 - nb.position[1]
+                nz = math.sqrt(ex * ex + ey * ey)
+                invz = max(nz, 1e-9)
+                hz = nz - (self.r_eff + nb.radius + cfg.margin_m + spread_l + lk + nb.lookahead)
+                rz = -half * (hz if hz > 0 else LOOKAHEAD_RECOVERY * hz)
+                if not (ex * zx + ey * zy) / invz >= rz + CLEAR_MARGIN:
+                    return None
+        if len(tubes):
+            ts = TubeSet.of(tubes)
+            vx, vy = (zx, zy) if (not self.omni and self.lookahead) else (px, py)
+            d = np.array([x, y])[None, :] - ts.centre
+            dist = _row_norms(d)
+            inv = np.maximum(dist, 1e-9)
+            g = ts.radius - dist
+            rate = self.gamma * g
+            if a_max is not None:
+                stop = np.sqrt(a_dt**2 + a_max * np.maximum(g, 0.0)) - a_dt
+                rate = np.where(g > 0, np.minimum(rate, stop), rate)
+            # m^T (steered velocity - c') <= growth + rate, m = d / |d|
+            lhs = (d[:, 0] * (vx - ts.velocity[:, 0]) + d[:, 1] * (vy - ts.velocity[:, 1])) / inv
+            if not np.all(lhs <= ts.growth + rate - CLEAR_MARGIN):
+                return None
+        return h_min
 
     def _solver(self, k: int):
         """The conic for at least k barrier rows: rows are limits, speed cap, then a padded
@@ -891,19 +987,22 @@ class SafetyGuard:
         if not keep.all():
             P = self._plans = P[:, keep]
             tau = tau[keep]
+        if not len(tau):
+            return _NO_TUBES
         _, x, y, vx, vy, w, speed, ch, sh = P
-        t = np.maximum(tau, 0.0)
+        t = tau if tau.min() >= 0.0 else np.maximum(tau, 0.0)
         # predict_position: integrate_body_velocity from (x, y, heading) with (speed, 0, w) for t
         a = w * t
         small = np.abs(a) < 1e-9
         sa, ca = np.sin(a), np.cos(a)
+        # (integrate_body_velocity's terms 0.0 * (ca - 1.0) and 0.0 * sa add a zero: left out, the same numbers)
         if small.any():
             w_safe = np.where(small, 1.0, w)
-            dx_b = np.where(small, speed * t, (speed * sa + 0.0 * (ca - 1.0)) / w_safe)
-            dy_b = np.where(small, 0.0 * t, (speed * (1.0 - ca) + 0.0 * sa) / w_safe)
+            dx_b = np.where(small, speed * t, (speed * sa) / w_safe)
+            dy_b = np.where(small, 0.0 * t, (speed * (1.0 - ca)) / w_safe)
         else:
-            dx_b = (speed * sa + 0.0 * (ca - 1.0)) / w
-            dy_b = (speed * (1.0 - ca) + 0.0 * sa) / w
+            dx_b = (speed * sa) / w
+            dy_b = (speed * (1.0 - ca)) / w
         centre = np.empty((len(tau), 2))
         centre[:, 0] = x + ch * dx_b - sh * dy_b
         centre[:, 1] = y + sh * dx_b + ch * dy_b
@@ -911,8 +1010,11 @@ class SafetyGuard:
         if still.any():
             centre[still, 0], centre[still, 1] = x[still], y[still]
         # plan_velocity: the sent velocity turned by w tau
-        wt = w * tau
-        cw, sw = np.cos(wt), np.sin(wt)
+        if t is tau:  # no plan stamped after now: w tau is a, whose sine and cosine are at hand
+            cw, sw = ca, sa
+        else:
+            wt = w * tau
+            cw, sw = np.cos(wt), np.sin(wt)
         velocity = np.empty((len(tau), 2))
         velocity[:, 0] = cw * vx - sw * vy
         velocity[:, 1] = sw * vx + cw * vy
@@ -1087,8 +1189,8 @@ class SafetyGuard:
             if gap.min() < 0:
                 self.commit_breaks += 1
                 self.commit_excess_max = max(self.commit_excess_max, float(-gap.min()))
-            # a tube already left is broken (counted): pulling back into it would not undo that
-            tubes = tubes.select(gap >= 0)
+                # a tube already left is broken (counted): pulling back into it would not undo that
+                tubes = tubes.select(gap >= 0)
         res = self.filter.filter(pose, command, self.neighbours(now), ranges, angles, tubes)
         if res.active:
             self.interventions += 1

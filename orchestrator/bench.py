@@ -6,6 +6,7 @@
     copath bench scale    [--robots 8 16 32 64 128] [--json]              realtime consensus fleets
     copath bench latency  [--robots 16] [--messages 100000] [--json]      neighbour latency, recorder rate
     copath bench secure   [--scenario e5.5] [--reps 3] [--json]           cost of secure mode (lockstep)
+    copath bench peers    [--robots 6 16] [--reps 1] [--json]             copath against IR-SIM, alternately
 
 Every subcommand prints a table (or, with ``--json``, one JSON document) and exits 1
 when a run failed. The figures measured on the project's machine, with the machine's
@@ -34,6 +35,7 @@ SUBCOMMANDS = {
     "scale": "orchestrator.bench_scale",
     "latency": "orchestrator.bench_latency",
     "secure": "orchestrator.bench_secure",
+    "peers": "orchestrator.bench_peers",
 }
 
 

@@ -16,7 +16,7 @@ Subcommands (``copath --version``; ``--log-level LEVEL`` before or after the sub
     copath scenarios [--json]
     copath validate CONFIG... [--set KEY=VALUE]...
     copath controllers [NAME...]
-    copath bench solve|dmpc|fleet|scale|latency|secure ... [--json]
+    copath bench solve|dmpc|fleet|scale|latency|secure|peers ... [--json]
 
 CONFIG is a scenario file, or a bundled scenario by its file stem or its experiment id
 (``copath run e5.5``). Exit codes: 0 done, 1 the run failed, 2 bad input, 3 a target of
@@ -685,7 +685,7 @@ def build_parser() -> argparse.ArgumentParser:
     ct = sub.add_parser("controllers", help="list the controller types (built-in and installed) and their parameters")
     ct.add_argument("names", nargs="*", metavar="NAME", help="only these controller types")
     b = sub.add_parser("bench", help="benchmarks that print figures", add_help=False)
-    b.add_argument("what", choices=("solve", "dmpc", "fleet", "scale", "latency", "secure"))
+    b.add_argument("what", choices=("solve", "dmpc", "fleet", "scale", "latency", "secure", "peers"))
     return p
 
 

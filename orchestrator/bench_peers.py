@@ -23,7 +23,9 @@ the 7.5 m column is shorter than half the path and no two robots meet at the cro
 
 Each side's real-time factor is simulated time / wall time of the whole run (IR-SIM's
 ``make`` and 800 steps; copath's building, running and metrics, as ``bench fleet``), and
-each copath figure is divided by the IR-SIM figure of the same repetition. ``agent CPU
+each copath figure is divided by the IR-SIM figure of the same repetition; ``same, by CPU``
+is the in-process ratio from CPU time per robot step (IR-SIM's over copath's), which a
+loaded machine moves much less than wall time. ``agent CPU
 ms/step`` is the fleet agents' CPU per lockstep step (p50 over agents, from their closing
 accounts) and ``inproc CPU us/step`` this process's CPU per robot step in one process.
 """
@@ -161,6 +163,9 @@ def _measure(n: int, rep: int, args: argparse.Namespace, root: pathlib.Path) -> 
     ir = row["irsim_rtf"]
     row["inproc_over_irsim"] = round(row["inproc_rtf"] / ir, 3) if row.get("inproc_rtf") else None
     row["fleet_over_irsim"] = round(row["fleet_rtf"] / ir, 3) if row.get("fleet_rtf") else None
+    # the same ratio from CPU time per robot step, which moves much less with the machine's load
+    cpu = row.get("inproc_cpu_us_per_step")
+    row["inproc_over_irsim_cpu"] = round(row["irsim_cpu_us_per_step"] / cpu, 3) if cpu else None
     return row
 
 
@@ -170,6 +175,7 @@ def _table(result: dict[str, Any]) -> None:
     print_table(result["runs"], [
         ("robots", "robots", "d"), ("rep", "rep", "d"), ("irsim_rtf", "IR-SIM rtf", ".1f"),
         ("inproc_rtf", "inproc rtf", ".1f"), ("inproc_over_irsim", "inproc/IR-SIM", ".2f"),
+        ("inproc_over_irsim_cpu", "same, by CPU", ".2f"),
         ("fleet_rtf", "lockstep rtf", ".1f"), ("fleet_over_irsim", "lockstep/IR-SIM", ".2f"),
         ("irsim_cpu_us_per_step", "IR-SIM CPU us/robot step", ".0f"),
         ("inproc_cpu_us_per_step", "inproc CPU us/robot step", ".0f"),

@@ -33,8 +33,10 @@ accounts) and ``inproc CPU us/step`` this process's CPU per robot step in one pr
 from __future__ import annotations
 
 import argparse
+import contextlib
 import math
 import pathlib
+import sys
 import time
 import tomllib
 from typing import Any
@@ -90,19 +92,21 @@ robot:
 
 def run_irsim(n: int, root: pathlib.Path, steps: int = STEPS) -> dict[str, Any]:
     """Run IR-SIM's ``n``-robot world for ``steps`` steps; wall and CPU time of make + steps."""
-    try:
-        import irsim  # noqa: PLC0415
-    except ImportError as exc:
-        raise SystemExit("copath bench peers needs IR-SIM: pip install 'copath[peers]' (the ir-sim package)") from exc
-    world = root / f"irsim-{n}.yaml"
-    world.write_text(irsim_world(n))
-    t0, c0 = time.perf_counter(), time.process_time()
-    env = irsim.make(str(world), display=False, headless=True, log_level="ERROR")
-    for _ in range(steps):
-        env.step()
-    wall, cpu = time.perf_counter() - t0, time.process_time() - c0
-    moving = sum(1 for r in env.robot_list if not r.arrive_flag)
-    env.end(0)
+    # IR-SIM prints its search for a plotting backend on stdout: keep stdout for the table or JSON
+    with contextlib.redirect_stdout(sys.stderr):
+        try:
+            import irsim  # noqa: PLC0415
+        except ImportError as exc:
+            raise SystemExit("copath bench peers needs IR-SIM: pip install 'copath[peers]' (the ir-sim package)") from exc
+        world = root / f"irsim-{n}.yaml"
+        world.write_text(irsim_world(n))
+        t0, c0 = time.perf_counter(), time.process_time()
+        env = irsim.make(str(world), display=False, headless=True, log_level="ERROR")
+        for _ in range(steps):
+            env.step()
+        wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+        moving = sum(1 for r in env.robot_list if not r.arrive_flag)
+        env.end(0)
     sim_s = steps * STEP_S
     return {"irsim_sim_s": sim_s, "irsim_wall_s": round(wall, 3), "irsim_rtf": round(sim_s / wall, 2),
             "irsim_cpu_us_per_step": round(1e6 * cpu / (steps * n), 1), "irsim_moving_at_end": moving}

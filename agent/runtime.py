@@ -33,6 +33,7 @@ import numpy as np
 from agent.controllers import build_controller, resolve_controller
 from copath.config import ConfigError
 from copath.control import Observation, PeerMessage, RobotContext
+from copath.detour import DetourPlanner
 from copath.estimation import PoseEKF
 from copath.paths import wrap_to_pi
 from copath.models import limit_change, world_velocity
@@ -53,7 +54,7 @@ _ERROR_CHARS = 300
 _TRACEBACK_CHARS = 6000
 """The traceback in the ``controller_error`` event keeps its last this many characters."""
 
-__all__ = ["RobotRuntime", "StepOutput", "handles_cut_off", "sensor_angles", "silent_hold_s"]
+__all__ = ["RobotRuntime", "StepOutput", "handles_cut_off", "handles_obstacles", "sensor_angles", "silent_hold_s"]
 
 
 def silent_hold_s(scenario: Scenario) -> float:
@@ -77,6 +78,38 @@ def handles_cut_off(scenario: Scenario, name: str) -> bool:
     except ConfigError:  # reported where that robot's controller is built
         return False
     return bool(getattr(factory.config, "handles_cut_off", False))
+
+
+def handles_obstacles(scenario: Scenario, name: str) -> bool:
+    """Whether robot ``name``'s controller avoids obstacles itself (``handles_obstacles = True``
+    on its parameter class: the unicycle NMPC's constraints, Sec. 4.4.3); the runtime's detour
+    stage then leaves it alone (docs/detours.md)."""
+    try:
+        factory = resolve_controller(scenario.robot(name).controller)
+    except ConfigError:
+        return False
+    return bool(getattr(factory.config, "handles_obstacles", False))
+
+
+def detour_planner(scenario: Scenario, name: str) -> DetourPlanner | None:
+    """The detour stage of robot ``name`` (docs/detours.md): one for every robot that follows a
+    path (its own, or, for a robot without one such as a Sec. 5.5.5 follower, the one path
+    its team's robots follow) with a controller that does not avoid obstacles itself; None
+    otherwise (Chapter 6 roles, the unicycle NMPC)."""
+    spec = scenario.robot(name)
+    path = spec.path
+    if not path:
+        shared = {r.path for r in scenario.robots if r.path}
+        path = next(iter(shared)) if len(shared) == 1 else None
+    if not path or path not in scenario.paths or handles_obstacles(scenario, name):
+        return None
+    from copath.detour import DetourConfig  # noqa: PLC0415
+    from copath.models import UnicycleModel  # noqa: PLC0415
+
+    return DetourPlanner(scenario.paths[path], spec.model.radius, isinstance(spec.model, UnicycleModel),
+                         scenario.run.dt, [(o.vertices, o.velocity) for o in scenario.obstacles if o.known],
+                         scenario.sensors.max_range_m if scenario.sensors.enabled else 0.0,
+                         DetourConfig(margin_m=scenario.safety.margin_m))
 
 
 def sensor_angles(count: int) -> np.ndarray:
@@ -197,6 +230,12 @@ class RobotRuntime:
         """Every robot of :attr:`_team` it has heard is lost here, at least one by silence."""
         self._overheard_at: dict[str, float] = {}
         """When an overheard envelope of each sender was last delivered to the filter."""
+        self.detour = detour_planner(scenario, name)
+        """The detour stage (docs/detours.md): the controller sees its pose moved back onto its
+        lane while a detour round a blocked lane is under way."""
+        self._radii = {r.name: r.model.radius for r in scenario.robots}
+        self._positions: dict[str, tuple[float, float, float]] = {}
+        """Without the safety filter: the last position each peer sent, and its stamp."""
 
     @property
     def subscriptions(self) -> list[str]:
@@ -315,9 +354,10 @@ class RobotRuntime:
             silence_events.append(Event(float(now), self.name, "cut_off" if cut else "reconnected",
                                         {"held": self._holds}))
         ranges = None if obs.ranges is None else np.asarray(obs.ranges, dtype=float)
+        seen, detour_offset = self._detour(now, pose, ranges, inbox, silence_events, cut and self._holds)
         observation = Observation(
             t=now,
-            pose=pose,
+            pose=seen,
             dt=self.dt,
             ranges=ranges,
             sensor_angles=self._angles,
@@ -341,6 +381,8 @@ class RobotRuntime:
         if hold:  # cut off: it cannot coordinate nor see the others; it stops where the others expect it
             cmd = [0.0] * self._cmd_size
             telemetry["cut_off"] = True
+        if detour_offset:
+            telemetry["detour_offset"] = detour_offset
         if self.safety is not None:
             t0 = time.perf_counter()
             for env in self._overhear.pop_ready(now) if self._overhear is not None else ():
@@ -398,6 +440,33 @@ class RobotRuntime:
         return Event(float(now), self.name, "controller_error",
                      {"k": int(k), "error": type(exc).__name__, "message": str(exc)[:_ERROR_CHARS],
                       "traceback": tb[-_TRACEBACK_CHARS:]})
+
+    def _detour(self, now: float, pose: np.ndarray, ranges, inbox: list[PeerMessage], events: list[Event],
+                held: bool = False) -> tuple[np.ndarray, float]:
+        """The detour stage (docs/detours.md): the pose the controller sees and the lane's shift,
+        from the range ring, the known obstacles and the other robots' discs (the safety filter's
+        when it runs: a lost robot is its held disc; else the positions heard); its
+        ``detour_start`` / ``detour_end`` events are appended to ``events``. A robot the runtime
+        holds still (cut off) plans nothing."""
+        if self.detour is None or held:
+            return pose, 0.0
+        peers = []
+        if self.safety is not None and (ranges is not None or self.lost or self._quiet_for_filter(now)
+                                        or self.detour.plan is not None or self.detour.stalled(now)):
+            for nb in self.safety.neighbours(now):  # held discs, and live ones to tell teammates in the ring
+                held = nb.age == 0.0 and nb.committed == (0.0, 0.0, 0.0, 0.0)
+                spread = nb.spread if nb.spread is not None else nb.speed_max * nb.age
+                peers.append((nb.position[0], nb.position[1], nb.radius + (0.0 if held else spread), held))
+        else:
+            for m in inbox:
+                if m.position is not None:
+                    self._positions[m.sender] = (m.position[0], m.position[1], m.stamp)
+            for r, (x, y, stamp) in self._positions.items():
+                held = r in self.lost
+                peers.append((x, y, self._radii.get(r, 0.0) + min(0.5 * max(now - stamp, 0.0), 0.5), held))
+        out = self.detour.step(now, pose, ranges, self._angles, peers)
+        events += [Event(float(now), self.name, what, detail) for what, detail in out.events]
+        return out.pose, out.offset
 
     def _cut_off(self, now: float) -> bool:
         """Every robot this robot has heard is lost, at least one by silence (docs/faults.md,

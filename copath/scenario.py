@@ -24,7 +24,7 @@ The TOML layout (every table optional unless said)::
     [controller] type = "<registered controller>" and its parameters (defaults for all)
     [[robots]]  name, model ("omni" | "unicycle" | table), pose = [x, y, theta], path,
                 neighbours = [...], [robots.controller] per-robot overrides
-    [[obstacles]] vertices = [[x, y], ...], velocity = [vx, vy] (optional)
+    [[obstacles]] vertices = [[x, y], ...], velocity = [vx, vy] (optional), known (optional)
     [metrics]   coordination_pairs = "all" | "edges", formation_tolerance_m, task_tolerance_m
                 (copath.metrics_config; docs/metrics.md)
     [safety]    enabled, gamma, margin_m, speed_max_mps, overhear, ... (copath.safety)
@@ -260,6 +260,9 @@ class ObstacleSpec:
     """Convex polygon at t = 0, counter-clockwise or clockwise [m]."""
     velocity: tuple[float, float] = (0.0, 0.0)
     """Constant translation velocity [m/s]."""
+    known: bool = False
+    """On the map every robot is given: robots plan detours round it from the start
+    (docs/detours.md); false: robots know of it only through their range sensors."""
 
 
 @dataclass(frozen=True)
@@ -411,14 +414,16 @@ def _silence(p: Any, where: str) -> Silence:
 
 
 def _obstacle(o: Any, where: str) -> ObstacleSpec:
-    require(isinstance(o, dict), where, o, "expected a table {vertices, velocity}")
+    require(isinstance(o, dict), where, o, "expected a table {vertices, velocity, known}")
     for k in o:
-        require(k in ("vertices", "velocity"), f"{where}.{k}", o[k], "allowed keys: vertices, velocity")
+        require(k in ("vertices", "velocity", "known"), f"{where}.{k}", o[k], "allowed keys: vertices, velocity, known")
     verts = o.get("vertices")
     require(isinstance(verts, list) and len(verts) >= 3, f"{where}.vertices", verts, "expected >= 3 [x, y] points")
     vs = tuple(as_float_tuple(v, f"{where}.vertices[{j}]", 2) for j, v in enumerate(verts))
     vel = as_float_tuple(o.get("velocity", [0.0, 0.0]), f"{where}.velocity", 2)
-    return ObstacleSpec(vs, vel)
+    known = o.get("known", False)
+    require(isinstance(known, bool), f"{where}.known", known, "expected true or false")
+    return ObstacleSpec(vs, vel, known)
 
 
 def _robot(r: Any, i: int, names: list, paths: Mapping[str, Path], defaults: dict, errs: _Errors,

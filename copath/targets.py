@@ -44,6 +44,7 @@ TARGETS: dict[str, tuple[str, str]] = {
     "wheel_speed_max_mps": ("robots", AT_MOST),
     "solver_failures": ("robots", AT_MOST),
     "path_progress_m": ("robots", AT_LEAST),
+    "stalled_s": ("robots", AT_MOST),
     # fleet
     "coordination_error_max_m": ("fleet", AT_MOST),
     "coordination_error_rms_m": ("fleet", AT_MOST),

@@ -37,7 +37,7 @@ from copath.wire.messages import Command, End, Estimate, Event, Stats, Telemetry
 
 from .figures import json_number as _f
 from .metrics_estimation import ESTIMATION_KEYS, estimation_metrics
-from .metrics_truth import cross_track_series, team_geometry, truth_metrics, truth_series
+from .metrics_truth import cross_track_series, detour_counts, stall_metrics, team_geometry, truth_metrics, truth_series
 
 __all__ = ["RobotTrace", "Trace", "trace_from_records", "compute_metrics", "metrics_from_log", "log_metrics", "reported_coordination_series", "METRIC_KEYS"]
 
@@ -79,6 +79,9 @@ ROBOT_KEYS = ROBOT_KEYS + ("path_progress_m",)
 # that step, from the runtime's controller_error telemetry (docs/controllers.md, "When step()
 # fails"); the fleet's is their sum. solver_failures counts only the controller's own solver_ok
 ROBOT_KEYS = ROBOT_KEYS + ("controller_errors",)
+# blocked lanes (docs/metrics.md, M4c; docs/detours.md): time stalled from the truth (null
+# without a path) and detours started, from the runtime's detour_start events
+ROBOT_KEYS = ROBOT_KEYS + ("stalled_s", "detours")
 FLEET_KEYS = (
     "coordination_error_max_m",
     "coordination_error_rms_m",
@@ -434,6 +437,7 @@ def compute_metrics(
             robots[n]["cross_track_error_rms_m"] = _f(np.sqrt(np.mean(e**2)))
     paths = dict(geometry.paths) if geometry is not None else {
         r.name: scenario.paths[r.path] for r in scenario.robots if r.path}
+    tracked: dict[str, np.ndarray] = {}
     for n, path in paths.items():
         rt = trace.robots.get(n)
         if n in robots and rt is not None and len(rt.t):
@@ -441,6 +445,13 @@ def compute_metrics(
             if known is None or len(known) != len(rt.t):
                 known = track_coordinate(path, np.asarray(rt.pose)[:, :2])
             robots[n]["path_progress_m"] = _f(known[-1])
+            tracked[n] = known
+    if tracked:
+        t_any = trace.robots[next(iter(tracked))].t
+        for n, v in stall_metrics(t_any, tracked, scenario, paths, series, geometry).items():
+            robots[n]["stalled_s"] = v
+    for n, c in detour_counts(trace.events, robots).items():
+        robots[n]["detours"] = c
     fleet: dict[str, Any] = dict.fromkeys(FLEET_KEYS)
     fleet.update(truth_metrics(trace, scenario, series))
     fleet["coordination_error_max_reported_m"], fleet["coordination_error_rms_reported_m"] = \

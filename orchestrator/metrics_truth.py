@@ -13,7 +13,10 @@ lemniscate); the team's desired geometry turns those path coordinates into
   leader-following team whose leader is lost goes on under a new one (docs/faults.md, "A
   new leader"): who leads when is decided from the losses the simulator recorded
   (:func:`leader_sequence`), and xi_ref is then recovered from the new leader's true
-  position and its slot; lost robots are not graded while they are lost;
+  position and its slot;
+- in every family, a robot the simulator records lost (``robot_lost`` .. ``robot_rejoined``)
+  is not graded while it is lost, and a mean reference is the live robots' mean; once back
+  it is graded again (its errors counting as a change until it is in its slot);
 - each robot's slot at xi_ref (a point of its offset curve), so the formation error of a
   robot is the distance from its true position to that slot;
 - the formation changes under way at xi_ref: the scheduled quintic transitions
@@ -56,7 +59,8 @@ from .figures import json_number as _f
 logger = logging.getLogger(__name__)
 
 __all__ = ["TeamGeometry", "TruthSeries", "team_geometry", "truth_series", "truth_metrics", "cross_track_series",
-           "FAMILIES", "leader_sequence", "outages"]
+           "FAMILIES", "leader_sequence", "outages", "stalled_mask", "stall_metrics", "detour_counts",
+           "STALL_WINDOW_S", "STALL_PROGRESS_M"]
 
 
 @dataclass
@@ -289,7 +293,7 @@ class TruthSeries:
     leaders: list[tuple[float, str]] | None = None
     """Who led, from when: [(t, robot), ...] (a team with a succession), else None."""
     lost: dict[str, np.ndarray] = field(default_factory=dict)
-    """(T,) True while a robot was lost (a team with a succession; robots ever lost only)."""
+    """(T,) True while a robot was lost (robots ever lost only; every family)."""
     rejoining: dict[str, np.ndarray] = field(default_factory=dict)
     """(T,) True from a lost robot's return until it is within ``formation_tolerance_m`` of
     its slot (robots that came back only): its formation errors count as a change, and its
@@ -391,9 +395,10 @@ def truth_series(trace, scenario: Scenario, geometry: TeamGeometry | None = None
 
     A team with a succession (Sec. 5.3) is measured from the leader it has at each tick
     (:func:`leader_sequence` on the trace's loss events): C from the leader's true
-    position and its slot, no formation error for the robot leading (it defines C; its
-    lateral error is its cross-track error) and none for a robot while it is lost (held
-    still, or cut off). A robot that comes back is graded again at once, its errors
+    position and its slot, and no formation error for the robot leading (it defines C; its
+    lateral error is its cross-track error). In every family a robot is not graded while it
+    is lost (held still, or cut off; the simulator's loss events), and a mean reference is
+    the mean of the live robots. A robot that comes back is graded again at once, its errors
     counting as a formation change (and its coordination pairs left out) until it is
     within ``formation_tolerance_m`` of its slot."""
     geo = geometry or team_geometry(scenario)
@@ -405,20 +410,30 @@ def truth_series(trace, scenario: Scenario, geometry: TeamGeometry | None = None
     T = min(len(trace.robots[n].t) for n in names)
     t = trace.robots[names[0]].t[:T]
     S = {n: track_coordinate(geo.paths[n], trace.robots[n].pose[:T, :2]) for n in names}
-    leaders, lost = None, {}
-    if geo.succession:
-        gone = outages(getattr(trace, "events", None) or ())
-        leaders = leader_sequence(geo.succession, gone, float(t[0]))
-        lost = _lost_masks(t, gone, names)
+    # every family grades the live robots only (docs/metrics.md, M2): a robot is left out
+    # while the simulator records it lost, and graded again once it is back in its slot
+    gone = outages(getattr(trace, "events", None) or ())
+    lost = _lost_masks(t, gone, names)
+    leaders = leader_sequence(geo.succession, gone, float(t[0])) if geo.succession else None
     if leaders is not None and len(leaders) > 1:
         xi_ref = _reference(geo, S, t, leaders)
         XI = geo.xi(S, ref=xi_ref)
     else:
         XI = geo.xi(S)
-        first = XI[geo.leader] if geo.leader in XI else XI[names[0]]
+        # the anchor of the laps: the leader, else the first robot never lost (a robot held
+        # still would move the others' laps as they pass it)
+        anchor = next((n for n in names if n not in lost), names[0])
+        first = XI[geo.leader] if geo.leader in XI else XI[anchor]
         # xi of every robot moved to the lap of the first one, so a mean is meaningful
         near = {n: first + wrap_near(XI[n] - first, geo.period) for n in names}
-        xi_ref = first if geo.leader in XI else np.mean([near[n] for n in names], axis=0)
+        if geo.leader in XI:
+            xi_ref = first
+        elif lost:  # the mean of the live robots at each tick
+            live = np.array([np.where(lost[n], np.nan, near[n]) if n in lost else near[n] for n in names])
+            xi_ref = np.where(np.isnan(live).all(axis=0), first, np.nanmean(
+                np.where(np.isnan(live).all(axis=0)[None, :], 0.0, live), axis=0))
+        else:
+            xi_ref = np.mean([near[n] for n in names], axis=0)
     slots = geo.slots(xi_ref)
     form = {n: np.hypot(*(trace.robots[n].pose[:T, :2] - P).T) for n, P in slots.items() if n in S}
     skip = {n: m.copy() for n, m in lost.items()}
@@ -555,4 +570,69 @@ def cross_track_series(trace, scenario: Scenario, geometry: TeamGeometry | None 
         x, y, th, _ = paths[n].frame(S[n])
         lat = -(P[n][:, 0] - x) * np.sin(th) + (P[n][:, 1] - y) * np.cos(th)
         out[n] = np.abs(lat - q[n])
+    return out
+
+
+STALL_WINDOW_S = 2.0
+"""A robot is stalled when its path coordinate moved less than :data:`STALL_PROGRESS_M` over the
+last this many seconds (docs/metrics.md, M4c; chosen: two control horizons of the slowest
+laws, well above a tick)."""
+STALL_PROGRESS_M = 0.05
+"""Progress below which a robot counts as stalled over :data:`STALL_WINDOW_S` [m] (chosen: 0.025
+m/s on average, an eighth of the slowest nominal speed of the bundled teams, 0.2 m/s)."""
+
+
+def stalled_mask(t: np.ndarray, s: np.ndarray, lost: np.ndarray | None = None, ahead: np.ndarray | None = None,
+                 end: float | None = None) -> np.ndarray:
+    """(T,) True at the ticks where a robot is stalled (docs/metrics.md, M4c): over the window
+    ``(t - STALL_WINDOW_S, t]`` its true path coordinate ``s`` moved by less than
+    :data:`STALL_PROGRESS_M` either way, it was not lost at any tick of the window (``lost``),
+    it is not waiting for its team (``ahead``: its coordination coordinate is ahead of the
+    team's reference by more than the formation tolerance) and it has not reached the end
+    ``end`` of an open path. The first window of the run is never stalled (no history)."""
+    t = np.asarray(t, dtype=float)
+    s = np.asarray(s, dtype=float)
+    out = np.zeros(len(t), dtype=bool)
+    if len(t) < 2:
+        return out
+    j = np.searchsorted(t, t - STALL_WINDOW_S + 1e-9, side="left")
+    full = t - t[0] >= STALL_WINDOW_S - 1e-9
+    out = full & (np.abs(s - s[j]) < STALL_PROGRESS_M)
+    if lost is not None and lost.any():
+        c = np.concatenate([[0], np.cumsum(lost.astype(int))])
+        out &= (c[np.arange(len(t)) + 1] - c[j]) == 0
+    if ahead is not None:
+        out &= ~ahead
+    if end is not None:
+        out &= s < end - STALL_PROGRESS_M
+    return out
+
+
+def stall_metrics(t: np.ndarray, S: dict[str, np.ndarray], scenario: Scenario, paths: dict[str, Path],
+                  series: TruthSeries | None = None, geometry: TeamGeometry | None = None) -> dict[str, float]:
+    """``stalled_s`` of every robot with a path: the time it was stalled (:func:`stalled_mask`)
+    [s], counted in the simulator's ticks; lost and waiting from ``series`` when the team has
+    a geometry."""
+    out: dict[str, float] = {}
+    dt = float(scenario.run.dt)
+    tol = float(scenario.metrics["formation_tolerance_m"])
+    for n, s in S.items():
+        T = min(len(t), len(s))
+        lost = ahead = None
+        if series is not None and len(series.t) == T:
+            lost = series.lost.get(n)
+            if n in series.xi and geometry is not None and geometry.leader != n:
+                ahead = wrap_near(series.xi[n] - series.xi_ref, geometry.period) > tol
+        path = paths[n]
+        mask = stalled_mask(t[:T], s[:T], lost, ahead, None if path.closed else path.length)
+        out[n] = _f(float(mask.sum()) * dt)
+    return out
+
+
+def detour_counts(events: Iterable, names: Iterable[str]) -> dict[str, int]:
+    """Detours each robot started: its runtime's ``detour_start`` events (docs/detours.md)."""
+    out = dict.fromkeys(names, 0)
+    for e in events:
+        if e.what == "detour_start" and e.source in out:
+            out[e.source] += 1
     return out

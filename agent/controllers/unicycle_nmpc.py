@@ -24,7 +24,7 @@ from __future__ import annotations
 import logging
 import math
 from dataclasses import dataclass
-from typing import Sequence
+from typing import ClassVar, Sequence
 
 import casadi as ca
 import numpy as np
@@ -350,6 +350,10 @@ class UnicycleNMPC:
 @dataclass(frozen=True)
 class UnicycleNMPCConfig(SolverFields):
     """Sec. 4.4 NMPC; defaults are the published values (4.55) of E4.4."""
+
+    handles_obstacles: ClassVar[bool] = True
+    """Obstacles are constraints of its own problem (Sec. 4.4.3): the runtime's detour stage
+    leaves it alone (docs/detours.md)."""
 
     mode: str = "combined"
     """``path_following`` (K_t = 0), ``trajectory_tracking`` or ``combined`` (E4.4)."""

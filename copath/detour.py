@@ -1,0 +1,487 @@
+"""Detours round a blocked lane: a runtime stage between the observation and any controller.
+
+The dissertation's path-following laws (Chapters 4-6) keep a robot on its path; obstacles
+are handled only by the single-robot unicycle NMPC (Sec. 4.4.3). The safety filter
+(``copath.safety``) keeps robots and obstacles apart but cannot make progress: a robot whose
+lane is blocked stops in front of the block for good. This stage plans the lateral part of a
+detour and leaves the rest to the controller, in the split of Nav2 (a planner decides where,
+the controller follows, a collision monitor vetoes): here the path is the plan, the detour a
+local re-plan of it, the controller unchanged and the safety filter the monitor.
+
+The lane of a robot is its path shifted by its lateral offset q (0 on the path, q of (5.10)
+for an offset slot). When a disc blocks the lane ahead (its distance from the lane less than
+its radius plus the robot's radius, the safety margin and :attr:`DetourConfig.clearance_m`),
+the lane is shifted sideways by a smooth bump
+
+    d(s) = A sigma(s),   sigma: 0 before the block, a quintic ramp up, 1 alongside, a ramp down,
+
+round the blocking discs, on the side that needs the smaller shift (ties: the robot's right,
+a fixed rule as the right-hand rules of ORCA and of the safety filter's deadlock rule, so two
+robots meeting head-on both keep right and pass). The controller is shown its pose moved
+back onto the lane by ``-d(s) n(s)`` (and, for a unicycle, its heading turned by the bump's
+slope): it follows its path as before, its path coordinate s and so its coordination
+variable are unchanged, and its body-frame commands are those it would give on the path.
+The safety filter still acts on the true pose, with the true margins.
+
+Blocks come from
+
+- obstacles declared ``known = true`` (a map every robot is given), as discs round them;
+- the range ring: each reading is a point, inflated by half the gap between neighbouring rays
+  at its range (an object narrower than the gap lies between two rays), less the readings
+  explained by a live neighbour's disc (teammates are not obstacles: the safety filter and
+  coordination handle them);
+- a lost robot held still: the static disc the safety filter keeps out of
+  (:meth:`copath.safety.SafetyGuard.neighbours`, docs/safety.md "A lost robot"), or without the
+  filter a disc round its last heard position;
+- no progress: a robot that has moved less than ``stall_progress_m`` along its path for
+  ``stall_s`` with a live neighbour's disc on its lane ahead goes round it on its right (the
+  deadlock of two CBF-filtered robots head-on, Grover et al. 2020: the filter alone keeps
+  them still on the boundary of the safe set).
+
+The stage is pure (no clock, no transport): :meth:`DetourPlanner.step` takes the time, pose,
+readings and what the runtime heard, and returns the pose to show the controller and the
+events of the step. docs/detours.md gives the method, its constants and its limits.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Iterable, Sequence
+
+import numpy as np
+
+from .paths import Path
+
+__all__ = ["DetourConfig", "Disc", "DetourPlan", "DetourPlanner", "DetourStep", "bump", "polygon_disc", "ray_discs",
+           "plan_shift"]
+
+
+@dataclass(frozen=True)
+class DetourConfig:
+    """Constants of the detour stage (docs/detours.md; all chosen)."""
+
+    lookahead_m: float = 1.2
+    """How far ahead along the path the lane is checked [m]."""
+    clearance_m: float = 0.06
+    """Gap kept between the robot's disc and a blocking disc beyond the safety margin [m]."""
+    margin_m: float = 0.01
+    """The safety filter's margin (``safety.margin_m``) [m]."""
+    ramp_m: float = 0.7
+    """Length of the ramps into and out of the detour along the path [m]."""
+    min_ramp_m: float = 0.25
+    """Shortest ramp into a detour (a block seen late) [m]."""
+    max_offset_m: float = 1.0
+    """Largest lateral shift; a lane that needs more on both sides is blocked wall to wall [m]."""
+    offset_rate_mps: float = 0.15
+    """Largest rate at which the bump's height grows when a detour is widened [m/s]."""
+    stall_s: float = 4.0
+    """No progress for this long with a live neighbour on the lane ahead starts a detour [s]."""
+    stall_progress_m: float = 0.05
+    """Progress along the path below which the robot counts as making none [m]."""
+    memory_s: float = 3.0
+    """Sensed points are kept this long after they were last seen [s]."""
+
+
+MIN_SPREAD = 0.4
+"""A shifted lane keeps 1 - kappa q at least this (chosen: the lane's own radius of curvature
+stays above 40 % of the path's, so the path coordinate of a point on it is unique nearby)."""
+
+
+@dataclass(frozen=True)
+class Disc:
+    """Something that blocks: a disc in the plane."""
+
+    x: float
+    y: float
+    radius: float
+    kind: str
+    """``known``, ``sensed``, ``held`` or ``peer``."""
+
+
+def polygon_disc(vertices) -> tuple[float, float, float]:
+    """(x, y, radius) of a disc round a polygon: centred at its vertices' mean."""
+    v = np.asarray(vertices, dtype=float).reshape(-1, 2)
+    c = v.mean(axis=0)
+    return float(c[0]), float(c[1]), float(np.max(np.hypot(*(v - c).T)))
+
+
+def ray_discs(pose, ranges, angles, robot_radius: float, max_range: float) -> list[tuple[float, float, float]]:
+    """(x, y, radius) of each finite range reading: the point it hit (a reading is measured from
+    the robot's rim, ``sim/world.py``), inflated by half the chord between two neighbouring rays
+    at that distance, so an object between two rays is covered."""
+    if ranges is None or angles is None or len(angles) == 0:
+        return []
+    r = np.asarray(ranges, dtype=float)
+    a = np.asarray(angles, dtype=float)
+    ok = np.isfinite(r) & (r < max_range - 1e-9)
+    if not ok.any():
+        return []
+    d = r[ok] + robot_radius
+    b = float(pose[2]) + a[ok]
+    half = d * math.sin(math.pi / len(a))
+    x = float(pose[0]) + d * np.cos(b)
+    y = float(pose[1]) + d * np.sin(b)
+    return [(float(xi), float(yi), float(h)) for xi, yi, h in zip(x, y, half)]
+
+
+def bump(u, u_lo: float, u_hi: float, ramp_in: float, ramp_out: float) -> np.ndarray:
+    """The bump's shape sigma at the distance ``u`` along the path from the detour's start:
+    a quintic smoothstep 6x^5 - 15x^4 + 10x^3 (zero slope and curvature at both ends) over
+    [u_lo - ramp_in, u_lo], 1 on [u_lo, u_hi], the mirror ramp over [u_hi, u_hi + ramp_out]."""
+    u = np.asarray(u, dtype=float)
+    x_in = np.clip((u - (u_lo - ramp_in)) / max(ramp_in, 1e-9), 0.0, 1.0)
+    x_out = np.clip((u_hi + ramp_out - u) / max(ramp_out, 1e-9), 0.0, 1.0)
+    x = np.minimum(x_in, x_out)
+    return x**3 * (10.0 + x * (-15.0 + 6.0 * x))
+
+
+def _bump_slope(u: float, u_lo: float, u_hi: float, ramp_in: float, ramp_out: float) -> float:
+    """d sigma / du at ``u``."""
+    if u_lo - ramp_in < u < u_lo:
+        x, g = (u - (u_lo - ramp_in)) / max(ramp_in, 1e-9), 1.0 / max(ramp_in, 1e-9)
+    elif u_hi < u < u_hi + ramp_out:
+        x, g = (u_hi + ramp_out - u) / max(ramp_out, 1e-9), -1.0 / max(ramp_out, 1e-9)
+    else:
+        return 0.0
+    return 30.0 * x**2 * (1.0 - x) ** 2 * g
+
+
+def plan_shift(lateral: Sequence[float], radii: Sequence[float], width: float, q: float) -> tuple[float, float]:
+    """(shift to the left (+n, >= 0), shift to the right (<= 0)) of a lane at lateral offset
+    ``q`` that clears every disc (lateral offset ``lateral[i]`` from the path, radius
+    ``radii[i]``) by ``width``: the lane then passes every disc on that side; (0, 0) without
+    a disc."""
+    if not len(lateral):
+        return 0.0, 0.0
+    e = np.asarray(lateral, dtype=float) - q
+    rho = np.asarray(radii, dtype=float) + width
+    return max(0.0, float(np.max(e + rho))), min(0.0, float(np.min(e - rho)))
+
+
+@dataclass
+class DetourPlan:
+    """One detour: the bump's height A (signed along the left normal), its span along the path
+    in the robot's direction of travel from ``s0`` (u = dir (s - s0)), and its base lane."""
+
+    s0: float
+    direction: int
+    target: float
+    """Height the bump grows to [m] (signed)."""
+    height: float
+    """Height now [m]."""
+    u_lo: float
+    u_hi: float
+    ramp_in: float
+    ramp_out: float
+    q: float
+    """Lateral offset of the lane the detour leaves and rejoins [m]."""
+    started: float
+    reason: str
+
+    def u(self, s: float) -> float:
+        return self.direction * (s - self.s0)
+
+    def offset(self, s: float) -> float:
+        return float(self.height * bump(self.u(s), self.u_lo, self.u_hi, self.ramp_in, self.ramp_out))
+
+    def slope(self, s: float) -> float:
+        """d offset / ds."""
+        return self.height * self.direction * _bump_slope(self.u(s), self.u_lo, self.u_hi, self.ramp_in,
+                                                          self.ramp_out)
+
+    def done(self, s: float) -> bool:
+        return self.u(s) >= self.u_hi + self.ramp_out
+
+
+@dataclass
+class DetourStep:
+    pose: np.ndarray
+    """The pose to show the controller (the true one when no detour is under way)."""
+    offset: float = 0.0
+    """Lateral shift of the lane now [m]."""
+    events: list[tuple[str, dict]] = field(default_factory=list)
+    """(what, detail) of ``detour_start`` / ``detour_end`` events of this step."""
+
+
+class DetourPlanner:
+    """One robot's detour stage (docs/detours.md).
+
+    Parameters
+    ----------
+    path : Path
+        The robot's path.
+    radius : float
+        Its footprint radius [m].
+    unicycle : bool
+        Whether its heading is turned with the bump's slope (a unicycle steers along it; an
+        omni robot's heading is its own).
+    dt : float
+        Control period [s].
+    known : sequence of (vertices, velocity)
+        Obstacles every robot is given (``known = true``): convex polygons at t = 0 and
+        their constant velocities.
+    sensor_max_range : float
+        The range ring's range (0 without one) [m].
+    config : DetourConfig
+    """
+
+    def __init__(self, path: Path, radius: float, unicycle: bool, dt: float, known: Iterable = (),
+                 sensor_max_range: float = 0.0, config: DetourConfig = DetourConfig()) -> None:
+        self.path = path
+        self.dt = float(dt)
+        self.radius = float(radius)
+        self.unicycle = bool(unicycle)
+        self.config = config
+        self.known = [(np.asarray(v, dtype=float).reshape(-1, 2), np.asarray(vel, dtype=float).reshape(2))
+                      for v, vel in known]
+        self.sensor_max_range = float(sensor_max_range)
+        self.plan: DetourPlan | None = None
+        self.s: float | None = None
+        self.direction = 1
+        self._history: list[tuple[float, float, float]] = []  # (t, x, y) over the last stall_s
+        self._tracked: list[tuple[float, float]] = []  # (t, s) over the last second while tracking
+        self._sensed: dict[tuple[int, int], tuple[float, float, float, float]] = {}  # cell -> (x, y, r, t seen)
+        self.detours = 0
+        self.width = self.radius + config.margin_m + config.clearance_m
+
+    # ------------------------------------------------------------------ discs
+    def _discs(self, t: float, pose, ranges, angles, peers: Sequence[tuple[float, float, float, bool]]) -> list[Disc]:
+        """Everything that may block: known obstacles at ``t``, remembered sensed points not
+        explained by a live peer, held peers. ``peers``: (x, y, radius, held)."""
+        out = []
+        for verts, vel in self.known:
+            x, y, r = polygon_disc(verts + vel * t)
+            out.append(Disc(x, y, r, "known"))
+        live = [(x, y, r) for x, y, r, held in peers if not held]
+        for x, y, r in ray_discs(pose, ranges, angles, self.radius, self.sensor_max_range):
+            if any(math.hypot(x - px, y - py) <= pr + 0.05 for px, py, pr in live):
+                continue  # a teammate, not an obstacle
+            self._sensed[(round(x / 0.05), round(y / 0.05))] = (x, y, r, t)
+        for key, (x, y, r, seen) in list(self._sensed.items()):
+            if t - seen > self.config.memory_s:
+                del self._sensed[key]
+            else:
+                out.append(Disc(x, y, r, "sensed"))
+        out += [Disc(x, y, r, "held") for x, y, r, held in peers if held]
+        return out
+
+    # ------------------------------------------------------------------ tracking
+    def _track(self, t: float, pose: np.ndarray) -> tuple[float, float, float, float, float]:
+        """The robot's path coordinate (searched near the last one while tracking), the path's
+        frame (x, y, theta, kappa) there, and its direction of travel along the path: a
+        unicycle's heading, else its motion over the last second (forward until it has moved)."""
+        p = pose[:2]
+        if self.s is None:
+            self.s = float(self.path.project(p))
+            self._tracked = []
+        else:
+            self.s = self._nearest(p, self.s)
+        frame = self.path.frame(self.s)
+        self._tracked.append((t, self.s))
+        while len(self._tracked) > 2 and self._tracked[0][0] < t - 1.0 - 1e-9:
+            self._tracked.pop(0)
+        if self.unicycle:
+            self.direction = 1 if math.cos(float(pose[2]) - frame[2]) >= 0.0 else -1
+        elif t - self._tracked[0][0] >= 1.0 - 1e-9 and abs(self.s - self._tracked[0][1]) > 0.02:
+            self.direction = 1 if self.s > self._tracked[0][1] else -1
+        return (self.s, *frame)
+
+    def _nearest(self, p: np.ndarray, s: float) -> float:
+        """The projection of p near s: Newton steps on (p - r(s)) . t(s) = 0 with the path's
+        scalar frame (a robot moves a few centimetres per period; ``Path.nearest``'s sampled
+        search costs a hundred times more)."""
+        px, py = float(p[0]), float(p[1])
+        for _ in range(4):
+            x, y, th, k = self.path.frame(s)
+            c, si = math.cos(th), math.sin(th)
+            ex, ey = px - x, py - y
+            f = ex * c + ey * si
+            den = 1.0 - k * (-ex * si + ey * c)
+            step = f / den if den > 0.2 else f
+            step = max(-0.3, min(0.3, step))
+            s += step
+            if abs(step) < 1e-7:
+                break
+        return float(s)
+
+    def _remember(self, t: float, p: np.ndarray) -> None:
+        """Keep the robot's positions over the last ``stall_s`` (for :meth:`stalled`)."""
+        self._history.append((t, float(p[0]), float(p[1])))
+        while len(self._history) > 2 and self._history[1][0] <= t - self.config.stall_s + 1e-9:
+            self._history.pop(0)
+
+    def stalled(self, t: float) -> bool:
+        """No progress: over the last ``stall_s`` the robot stayed within ``stall_progress_m``
+        of where it is (a robot that moves along its path moves in the plane)."""
+        h = self._history
+        if not h or t - h[0][0] < self.config.stall_s - 1e-9:
+            return False
+        x, y = h[-1][1], h[-1][2]
+        return all(math.hypot(a - x, b - y) < self.config.stall_progress_m for _, a, b in h)
+
+    # ------------------------------------------------------------------ step
+    def step(self, t: float, pose, ranges=None, angles=None,
+             peers: Sequence[tuple[float, float, float, bool]] = ()) -> DetourStep:
+        """One control instant: the pose to show the controller and the detour's events.
+
+        ``peers``: every other robot the runtime knows of as (x, y, radius, held): ``held``
+        for a lost robot held still (a static obstacle), else a live neighbour's disc."""
+        pose = np.asarray(pose, dtype=float)
+        p = pose[:2]
+        discs = self._discs(t, pose, ranges, angles, peers)
+        self._remember(t, p)
+        reach = self.config.lookahead_m + self.width + 0.5
+        near = [d for d in discs if math.hypot(d.x - p[0], d.y - p[1]) <= reach + d.radius]
+        live_near = []
+        if self.plan is None and not near:
+            if self.stalled(t):
+                live_near = [(x, y, r) for x, y, r, held in peers
+                             if not held and math.hypot(x - p[0], y - p[1]) <= 1.0]
+            if not live_near:
+                self.s = None  # nothing to track: the stage costs next to nothing away from obstacles
+                return DetourStep(pose)
+        s, x0, y0, th0, k0 = self._track(t, pose)
+        events: list[tuple[str, dict]] = []
+        n0 = np.array([-math.sin(th0), math.cos(th0)])
+        e_now = float((p - np.array([x0, y0])) @ n0)
+        plan = self.plan
+        q = plan.q if plan is not None else e_now
+        if plan is None:
+            reason = None
+            blocking = self._blocking(s, q, near, 0.0, self.config.lookahead_m)
+            if blocking:
+                reason = blocking[0][0].kind
+            elif live_near:
+                peer_discs = [Disc(x, y, r, "peer") for x, y, r in live_near]
+                blocking = self._blocking(s, q, peer_discs, 0.0, 0.6)
+                reason = "stalled" if blocking else None
+            if blocking:
+                plan = self._new_plan(t, s, q, blocking, near, reason)
+                if plan is not None:
+                    self.plan = plan
+                    self.detours += 1
+                    events.append(("detour_start", {"reason": reason, "side": "left" if plan.target * plan.direction > 0 else "right",
+                                                    "offset_m": round(abs(plan.target), 4), "s": round(s, 4)}))
+        else:
+            self._extend(plan, s, near)
+        plan = self.plan
+        if plan is None:
+            return DetourStep(pose, 0.0, events)
+        # the height grows towards the target at a bounded rate (a widened detour does not jump)
+        step = self.config.offset_rate_mps * self.dt
+        plan.height += max(-step, min(step, plan.target - plan.height)) if plan.height != plan.target else 0.0
+        if plan.done(s):
+            events.append(("detour_end", {"duration_s": round(t - plan.started, 3), "s": round(s, 4)}))
+            self.plan = None
+            return DetourStep(pose, 0.0, events)
+        d = plan.offset(s)
+        if d == 0.0:
+            return DetourStep(pose, 0.0, events)
+        seen = pose.copy()
+        seen[:2] = p - d * n0
+        if self.unicycle:
+            seen[2] = pose[2] - math.atan2(plan.slope(s), 1.0 - k0 * (plan.q + d))
+        return DetourStep(seen, d, events)
+
+    def _lane(self, s: float, q: float, u0: float, u1: float, n: int = 25):
+        """Points of the lane at lateral offset q from u0 to u1 ahead, with their s."""
+        ss = s + self.direction * np.linspace(u0, u1, n)
+        x, y, th, _ = self.path.frame(ss)
+        return ss, np.stack([x - q * np.sin(th), y + q * np.cos(th)], axis=-1)
+
+    def _blocking(self, s: float, q: float, discs: Sequence[Disc], u0: float, u1: float
+                  ) -> list[tuple[Disc, float, float]]:
+        """(disc, its u along the lane, its lateral offset from the path) of the discs on the lane
+        at lateral offset q between u0 and u1 ahead."""
+        if not discs:
+            return []
+        ss, P = self._lane(s, q, u0, u1)
+        out = []
+        for d in discs:
+            dist = np.hypot(P[:, 0] - d.x, P[:, 1] - d.y)
+            k = int(np.argmin(dist))
+            if dist[k] < d.radius + self.width:
+                x, y, th, _ = self.path.frame(float(ss[k]))
+                lat = -(d.x - x) * math.sin(th) + (d.y - y) * math.cos(th)
+                out.append((d, self.direction * (float(ss[k]) - s), float(lat)))
+        return out
+
+    def _new_plan(self, t: float, s: float, q: float, blocking, near: Sequence[Disc], reason: str) -> DetourPlan | None:
+        cfg = self.config
+        right = -self.direction  # the robot's right as a sign along the left normal n
+        side = self._side(s, q, blocking, near, right, prefer_right=reason == "stalled")
+        if side is None:
+            return None
+        target, group = side
+        u_lo = min(u - d.radius - self.width for d, u, _ in group)
+        u_hi = max(u + d.radius + self.width for d, u, _ in group)
+        ramp_in = min(cfg.ramp_m, max(u_lo, cfg.min_ramp_m))
+        u_lo = max(u_lo, ramp_in)
+        return DetourPlan(s, self.direction, target, target, u_lo, max(u_hi, u_lo), ramp_in, cfg.ramp_m, q, t, reason)
+
+    def _side(self, s: float, q: float, blocking, near: Sequence[Disc], right: int, prefer_right: bool):
+        """(signed height, the discs it clears) of the side that needs the smaller shift and whose
+        shifted lane is free of every other disc near; ties (within 2 cm) and stalls go right."""
+        cfg = self.config
+        options = []
+        for sign in (right, -right):
+            group = list(blocking)
+            for _ in range(4):  # widen round discs the shifted lane would meet
+                left_shift, right_shift = plan_shift([lat for _, _, lat in group], [d.radius for d, _, _ in group],
+                                                     self.width, q)
+                h = left_shift if sign > 0 else right_shift
+                if abs(h) > cfg.max_offset_m:
+                    h = None
+                    break
+                if not self._room(s, q + h, group):
+                    h = None
+                    break
+                more = [b for b in self._blocking(s, q + h, near, 0.0, cfg.lookahead_m + 0.5)
+                        if all(b[0] is not g[0] for g in group)]
+                if not more:
+                    break
+                group += more
+            else:
+                h = None
+            if h is not None:
+                options.append((abs(h), sign != right, h, group))
+        if not options:
+            return None
+        if prefer_right and any(not o[1] for o in options):
+            options = [o for o in options if not o[1]]
+        best = min(options, key=lambda o: (o[0] - 0.02 * (not o[1]), o[1]))
+        return best[2], best[3]
+
+    def _room(self, s: float, q: float, group) -> bool:
+        """Whether a lane at lateral offset q stays well short of the path's centres of
+        curvature alongside the discs (1 - kappa q >= MIN_SPREAD): inside a tight bend the
+        offset lane would fold over itself and the path coordinate would jump."""
+        u1 = max(u for _, u, _ in group) + self.config.ramp_m
+        ss = s + self.direction * np.linspace(0.0, u1, 25)
+        kappa = np.asarray(self.path.kappa(ss), dtype=float)
+        return bool(np.all(1.0 - kappa * q >= MIN_SPREAD))
+
+    def _extend(self, plan: DetourPlan, s: float, near: Sequence[Disc]) -> None:
+        """Discs newly seen on the base lane beside or ahead of the detour widen and lengthen it,
+        on the same side (a box whose far side comes into view)."""
+        u = plan.u(s)
+        top = plan.u_hi + plan.ramp_out + 0.2
+        if u > plan.u_hi + 0.5 * plan.ramp_out:
+            return  # rejoining: what lies ahead is the next detour's
+        ss = plan.s0 + plan.direction * np.linspace(max(u - 0.3, 0.0), top, 25)
+        x, y, th, _ = self.path.frame(ss)
+        P = np.stack([x - plan.q * np.sin(th), y + plan.q * np.cos(th)], axis=-1)
+        for d in near:
+            dist = np.hypot(P[:, 0] - d.x, P[:, 1] - d.y)
+            k = int(np.argmin(dist))
+            if dist[k] >= d.radius + self.width:
+                continue
+            lat = -(d.x - x[k]) * math.sin(th[k]) + (d.y - y[k]) * math.cos(th[k])
+            need = (lat - plan.q + d.radius + self.width) if plan.target > 0 else (lat - plan.q - d.radius - self.width)
+            if plan.target > 0 and need > plan.target:
+                plan.target = min(need, self.config.max_offset_m)
+            elif plan.target < 0 and need < plan.target:
+                plan.target = max(need, -self.config.max_offset_m)
+            uk = plan.direction * (float(ss[k]) - plan.s0) + d.radius + self.width
+            plan.u_hi = max(plan.u_hi, uk)

@@ -1,0 +1,82 @@
+"""Detours round a blocked lane in closed loop (one process, ``run_scenario``; docs/detours.md):
+the robots go round a box on their lane, keep their distance from it and from each other,
+make at least 90 % of the progress they make without it, and are back in coordination
+within 20 s after the last robot has passed."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from copath.scenario import load_scenario
+from copath.slots import track_coordinate
+from copath.targets import grade
+from orchestrator.inprocess import run_scenario
+from orchestrator.metrics_truth import cross_track_series, truth_series
+from tests.conftest import config
+
+
+def _progress(res, scen) -> dict[str, float]:
+    """How far each robot truly got along its path [m] (M1 of docs/metrics.md)."""
+    ser = truth_series(res.trace, scen)
+    if ser is None:  # one robot: no team
+        S = {r.name: track_coordinate(scen.paths[r.path], res.trace.robots[r.name].pose[:, :2]) for r in scen.robots}
+    else:
+        S = ser.s
+    return {n: float(s[-1] - s[0]) for n, s in S.items()}
+
+
+def _without_obstacles(scen):
+    return dataclasses.replace(scen, obstacles=())
+
+
+def test_one_robot_goes_round_a_sensed_box_and_rejoins_its_path():
+    """Fast: the E5.5 robot r1 alone, a 0.2 m box on its lane 1.3 m ahead, sensed only."""
+    scen = load_scenario(config("e5.5-column-box-on-lane"))
+    r1 = dataclasses.replace(scen.robot("r1"), neighbours=())
+    box = [[0.273, 0.255], [0.473, 0.255], [0.473, 0.455], [0.273, 0.455]]  # centred on r(2.5)
+    scen = dataclasses.replace(scen, robots=(r1,),
+                               obstacles=(dataclasses.replace(scen.obstacles[0], vertices=tuple(map(tuple, box))),))
+    res = run_scenario(scen, duration_s=20.0)
+    free = run_scenario(_without_obstacles(scen), duration_s=20.0)
+    m, r = res.metrics, res.metrics["robots"]["r1"]
+    assert r["detours"] == 1 and r["stalled_s"] == 0.0
+    assert m["fleet"]["collisions"] == 0 and m["fleet"]["min_obstacle_clearance_m"] > 0.0
+    assert _progress(res, scen)["r1"] >= 0.9 * _progress(free, scen)["r1"]
+    ends = [e for e in res.trace.events if e.what == "detour_end"]
+    assert len(ends) == 1
+    # rejoining its path after the detour ended: within 4 cm of it over the last 2 s and
+    # converging (the Lyapunov law's own rate, Sec. 5.5)
+    e = cross_track_series(res.trace, scen)["r1"]
+    t = res.trace.robots["r1"].t
+    last = e[t >= t[-1] - 2.0]
+    assert t[-1] - ends[0].t > 2.0 and np.max(last) < 0.04 and last[-1] < 0.5 * last[0]
+
+
+def _check(scen, res, free):
+    m = res.metrics
+    graded = grade(scen.targets, m)
+    assert all(g.passed for g in graded), [g for g in graded if not g.passed]
+    assert m["fleet"]["collisions"] == 0
+    if m["fleet"]["min_obstacle_clearance_m"] is not None:
+        assert m["fleet"]["min_obstacle_clearance_m"] > 0.0
+    with_box, without = _progress(res, scen), _progress(free, scen)
+    for n in with_box:
+        assert with_box[n] >= 0.9 * without[n], (n, with_box[n], without[n])
+    assert all(r["detours"] >= 1 for r in m["robots"].values())
+    # coordination among the robots back under 0.05 m within 20 s after the last has passed
+    last = max(e.t for e in res.trace.events if e.what == "detour_end")
+    ser = truth_series(res.trace, scen)
+    after = (ser.t >= last + 20.0)
+    if after.any():
+        assert np.nanmax(ser.coordination_error[after]) < 0.05
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("prefix", ["e5.5-column-box-on-lane", "e5.2-dmpc-obstacle-between-lanes",
+                                    "e5.7-heterogeneous-box-on-route"])
+def test_bundled_blocked_lane_scenarios_meet_their_goals(prefix):
+    scen = load_scenario(config(prefix))
+    _check(scen, run_scenario(scen), run_scenario(_without_obstacles(scen)))

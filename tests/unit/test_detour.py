@@ -1,0 +1,175 @@
+"""The detour stage's geometry (copath/detour.py, docs/detours.md), without a controller: a
+robot is moved along its lane as shifted by the stage, as a perfect controller would."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from copath.detour import DetourConfig, DetourPlanner, bump, plan_shift, polygon_disc, ray_discs
+from copath.paths import line
+
+DT = 0.1
+R = 0.06  # a c't-Bot's footprint
+
+
+def _box(cx: float, cy: float, half: float = 0.1):
+    return [[cx - half, cy - half], [cx + half, cy - half], [cx + half, cy + half], [cx - half, cy + half]]
+
+
+def _drive(planner: DetourPlanner, speed: float = 0.2, x0: float = 0.0, duration: float = 40.0, direction: int = 1,
+           peers=(), ranges_of=None):
+    """Move a robot along the straight path y = 0 at ``speed``, its true lateral position the
+    stage's offset (a controller that keeps the pose it is shown on the path). Returns the
+    true positions, the poses shown, the offsets and the events."""
+    x, y = x0, 0.0
+    heading = 0.0 if direction > 0 else math.pi
+    out = {"true": [], "seen": [], "offset": [], "events": []}
+    for k in range(int(duration / DT)):
+        pose = np.array([x, y, heading])
+        ranges = None if ranges_of is None else ranges_of(pose)
+        step = planner.step(k * DT, pose, ranges, None if ranges is None else 2 * np.pi * np.arange(12) / 12,
+                            peers)
+        out["true"].append(pose)
+        out["seen"].append(step.pose)
+        out["offset"].append(step.offset)
+        out["events"] += [(k * DT, what, d) for what, d in step.events]
+        x += direction * speed * DT
+        y = step.offset  # the controller keeps the shown pose on the path: the true one on the shifted lane
+    return {k: (np.array(v) if k != "events" else v) for k, v in out.items()}
+
+
+def test_bump_is_zero_outside_one_alongside_and_smooth():
+    u = np.linspace(-1.0, 4.0, 5001)
+    b = bump(u, 1.0, 2.0, 0.6, 0.7)
+    assert np.all(b[u <= 0.4] == 0.0) and np.all(b[u >= 2.7] == 0.0)
+    assert np.allclose(b[(u >= 1.0) & (u <= 2.0)], 1.0)
+    assert np.all(np.diff(b[u <= 1.5]) >= -1e-12) and np.all(np.diff(b[u >= 1.5]) <= 1e-12)
+    slope = np.diff(b) / np.diff(u)
+    assert np.max(np.abs(slope)) < 1.875 / 0.6 + 1e-3  # the quintic's peak slope 15/8 per ramp length
+    assert abs(slope[np.searchsorted(u, 0.401)]) < 1e-3 and abs(slope[np.searchsorted(u, 2.699)]) < 1e-3
+
+
+def test_polygon_and_ray_discs():
+    x, y, r = polygon_disc(_box(1.0, 2.0))
+    assert (x, y) == pytest.approx((1.0, 2.0)) and r == pytest.approx(math.sqrt(2) * 0.1)
+    angles = 2 * np.pi * np.arange(12) / 12
+    ranges = np.full(12, np.inf)
+    ranges[3] = 0.3  # the ray at 90 deg of a robot heading +x: a point 0.3 m beyond its rim, to its left
+    (px, py, half), = ray_discs([1.0, 1.0, 0.0], ranges, angles, R, 0.5)
+    assert (px, py) == pytest.approx((1.0, 1.0 + 0.3 + R))
+    assert half == pytest.approx((0.3 + R) * math.sin(math.pi / 12))  # half the chord to the next ray
+
+
+def test_plan_shift_clears_every_disc_by_the_width():
+    left, right = plan_shift([0.05, -0.1], [0.1, 0.1], 0.13, 0.0)
+    assert left == pytest.approx(0.05 + 0.23) and right == pytest.approx(-0.1 - 0.23)
+    assert plan_shift([], [], 0.13, 0.0) == (0.0, 0.0)
+
+
+@pytest.mark.parametrize("lateral, side", [(0.0, "right"), (0.04, "right"), (-0.04, "left")])
+def test_known_box_detour_keeps_the_gap_and_rejoins(lateral, side):
+    path = line((-1.0, 0.0), 0.0, 20.0)
+    planner = DetourPlanner(path, R, True, DT, known=[(_box(3.0, lateral), (0.0, 0.0))])
+    run = _drive(planner)
+    p = run["true"]
+    # the disc round the box is kept out of by the robot's radius, the margin and the clearance
+    gap = np.hypot(p[:, 0] - 3.0, p[:, 1] - lateral) - polygon_disc(_box(3.0, lateral))[2] - R
+    assert gap.min() >= planner.config.clearance_m + planner.config.margin_m - 0.01
+    starts = [e for e in run["events"] if e[1] == "detour_start"]
+    ends = [e for e in run["events"] if e[1] == "detour_end"]
+    assert len(starts) == 1 and len(ends) == 1 and starts[0][2]["side"] == side
+    assert (run["offset"].min() < 0) == (side == "right")
+    # the pose shown is the true one moved back by the offset: on the path, up to the one step
+    # by which this robot lags the offset; the true one is back on the path after the box
+    assert np.allclose(run["seen"][:, 1], p[:, 1] - run["offset"], atol=1e-12)
+    assert np.max(np.abs(run["seen"][:, 1])) < 0.03
+    assert np.all(run["offset"][p[:, 0] > 4.5] == 0.0)
+    # no jump: the lateral shift moves by at most the bump's slope times the distance per step
+    assert np.max(np.abs(np.diff(run["offset"]))) < 0.2 * DT * 2.0
+
+
+def test_nothing_near_leaves_the_pose_untouched():
+    path = line((-1.0, 0.0), 0.0, 20.0)
+    planner = DetourPlanner(path, R, True, DT, known=[(_box(30.0, 5.0), (0.0, 0.0))])
+    pose = np.array([0.0, 0.01, 0.1])
+    step = planner.step(0.0, pose)
+    assert step.pose is pose and step.offset == 0.0 and not step.events and planner.s is None
+
+
+def test_a_lane_blocked_wall_to_wall_is_not_detoured():
+    path = line((-1.0, 0.0), 0.0, 20.0)
+    walls = [(_box(3.0, y, 0.1), (0.0, 0.0)) for y in np.arange(-1.6, 1.61, 0.2)]
+    planner = DetourPlanner(path, R, True, DT, known=walls, config=DetourConfig(max_offset_m=1.0))
+    run = _drive(planner, duration=10.0)
+    assert not run["events"] and np.all(run["offset"] == 0.0)
+
+
+def test_held_robot_disc_is_a_block_and_live_one_is_not():
+    path = line((-1.0, 0.0), 0.0, 20.0)
+    held = DetourPlanner(path, R, True, DT)
+    run = _drive(held, peers=[(3.0, 0.0, 0.2, True)])
+    assert [e[2]["reason"] for e in run["events"] if e[1] == "detour_start"] == ["held"]
+    live = DetourPlanner(path, R, True, DT)
+    run = _drive(live, peers=[(3.0, 0.0, 0.2, False)], duration=10.0)  # a teammate ahead: no detour
+    assert not run["events"]
+
+
+def test_sensed_box_through_the_ring_and_teammates_filtered():
+    from sim.geometry import ray_cast  # the simulator's rays (tests may use sim/)
+
+    path = line((-1.0, 0.0), 0.0, 20.0)
+    box = np.array(_box(3.0, 0.0))
+    angles = 2 * np.pi * np.arange(12) / 12
+
+    def ranges_of(pose):
+        r = np.asarray(ray_cast(pose[:2], float(pose[2]), angles, 0.5 + R, [box]), dtype=float) - R
+        return np.where(np.isfinite(r), np.clip(r, 0.0, 0.5), np.inf)
+
+    planner = DetourPlanner(path, R, True, DT, sensor_max_range=0.5)
+    run = _drive(planner, ranges_of=ranges_of)
+    p = run["true"]
+    assert [e[2]["reason"] for e in run["events"] if e[1] == "detour_start"] == ["sensed"]
+    clear = np.array([_clearance(q, box) for q in p[:, :2]]) - R
+    assert clear.min() > 0.0
+    assert p[-1, 0] > 6.0 and abs(p[-1, 1]) < 1e-9  # past the box and back on the path
+    # the same readings explained by a live teammate standing there are not an obstacle
+    mate = DetourPlanner(path, R, True, DT, sensor_max_range=0.5)
+    run = _drive(mate, ranges_of=ranges_of, peers=[(3.0, 0.0, 0.15, False)], duration=12.0)
+    assert not run["events"]
+
+
+def _clearance(p, poly) -> float:
+    """Distance from a point to a convex polygon's boundary (positive outside)."""
+    best = math.inf
+    for a, b in zip(poly, np.roll(poly, -1, axis=0)):
+        ab, ap = b - a, p - a
+        t = min(max(float(ap @ ab) / float(ab @ ab), 0.0), 1.0)
+        best = min(best, float(np.hypot(*(ap - t * ab))))
+    return best
+
+
+def test_head_on_stall_both_keep_right_and_pass():
+    """Two robots facing each other on one lane, each stopped by the other's disc (what the
+    safety filter does): after stall_s each goes round the other on its own right."""
+    path = line((-5.0, 0.0), 0.0, 20.0)
+    a = DetourPlanner(path, R, True, DT)
+    b = DetourPlanner(path, R, True, DT)
+    pa, pb = np.array([0.0, 0.0, 0.0]), np.array([0.3, 0.0, math.pi])
+    offs_a, offs_b, ev = [], [], []
+    for k in range(200):
+        t = k * DT
+        sa = a.step(t, pa, peers=[(pb[0], pb[1], R, False)])
+        sb = b.step(t, pb, peers=[(pa[0], pa[1], R, False)])
+        ev += sa.events + sb.events
+        offs_a.append(sa.offset)
+        offs_b.append(sb.offset)
+        if a.plan is not None and b.plan is not None:  # both detouring: they drive on
+            pa = np.array([pa[0] + 0.2 * DT, sa.offset, 0.0])
+            pb = np.array([pb[0] - 0.2 * DT, sb.offset, math.pi])
+    starts = [d for what, d in ev if what == "detour_start"]
+    assert len(starts) == 2 and all(d["reason"] == "stalled" and d["side"] == "right" for d in starts)
+    assert min(offs_a) < 0 < max(offs_b)  # a (going +x) passes below, b (going -x) above
+    assert pa[0] > 0.3 and pb[0] < 0.0  # they passed each other

@@ -105,11 +105,17 @@ def detour_planner(scenario: Scenario, name: str) -> DetourPlanner | None:
         return None
     from copath.detour import DetourConfig  # noqa: PLC0415
     from copath.models import UnicycleModel  # noqa: PLC0415
+    from copath.safety import UNICYCLE_TURN_RAD  # noqa: PLC0415
 
-    return DetourPlanner(scenario.paths[path], spec.model.radius, isinstance(spec.model, UnicycleModel),
+    unicycle = isinstance(spec.model, UnicycleModel)
+    turn = scenario.safety.deadlock_turn_rad
+    # the filter's deadlock rule (a right turn while a barrier slows the robot) already unwinds
+    # head-on jams where it is on (unicycles by default): the stage's stall rule is for the rest
+    ruled = scenario.safety.enabled and (UNICYCLE_TURN_RAD if turn is None and unicycle else (turn or 0.0)) > 0
+    return DetourPlanner(scenario.paths[path], spec.model.radius, unicycle,
                          scenario.run.dt, [(o.vertices, o.velocity) for o in scenario.obstacles if o.known],
                          scenario.sensors.max_range_m if scenario.sensors.enabled else 0.0,
-                         DetourConfig(margin_m=scenario.safety.margin_m))
+                         DetourConfig(margin_m=scenario.safety.margin_m, stall_detours=not ruled))
 
 
 def sensor_angles(count: int) -> np.ndarray:

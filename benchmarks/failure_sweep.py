@@ -6,8 +6,11 @@ from the simulator's truth.
     python benchmarks/failure_sweep.py [--only e5.1 e5.6-circle ...] [--faults kill silence]
                                        [--set run.cut_off=drive ...] [--json]
 
-Per run: collisions and minimum separation over the whole run (the metrics' rule), and the
-fleet's largest coordination error after settling, or the tasks completed (Chapter 6).
+Per run: collisions and minimum separation over the whole run (the metrics' rule), the
+fleet's largest coordination error after settling over the live robots (docs/metrics.md, M3),
+or the tasks completed (Chapter 6), and each live robot's progress along its path as a share
+of its progress in the same run without the failure (``progress``; the goal of
+docs/detours.md is >= 90 % for every live robot), with the detours they made.
 A kill is ``run_scenario(kills=...)``: the robot's link closes at that tick, as with
 SIGKILL (its token goes, the simulator holds it still); a silence is ``network.silence``
 from that time to the end.
@@ -29,7 +32,9 @@ if str(REPO) not in sys.path:
 
 from copath.scenario import Scenario, Silence  # noqa: E402
 from orchestrator import api  # noqa: E402
+from copath.slots import track_coordinate  # noqa: E402
 from orchestrator.inprocess import run_scenario  # noqa: E402
+from orchestrator.metrics_truth import truth_series  # noqa: E402
 from tests.conftest import config  # noqa: E402
 
 CASES: list[tuple[str, tuple[float, ...], float, tuple[str, ...]]] = [
@@ -52,8 +57,28 @@ scenarios, up to two victims and two times each (chosen: early, and after the fo
 settled, where the run is long enough)."""
 
 
-def run_case(scen: Scenario, fault: str, victim: str, t_fault: float, duration_s: float) -> dict[str, Any]:
-    """One run in one process with ``victim`` killed or silenced at ``t_fault``."""
+def progress(res, scen: Scenario) -> dict[str, float]:
+    """How far each robot with a path truly got along it [m]: its path coordinate at the end
+    less at the start (docs/metrics.md, M1), from the truth."""
+    ser = truth_series(res.trace, scen)
+    if ser is not None:
+        S = ser.s
+    else:
+        S = {r.name: track_coordinate(scen.paths[r.path], res.trace.robots[r.name].pose[:, :2])
+             for r in scen.robots if r.path and r.name in res.trace.robots}
+    return {n: float(v[-1] - v[0]) for n, v in S.items() if len(v)}
+
+
+def baseline(scen: Scenario, duration_s: float) -> dict[str, float]:
+    """:func:`progress` of the same run without any failure."""
+    scen = dataclasses.replace(scen, run=dataclasses.replace(scen.run, on_robot_failure="continue"))
+    return progress(run_scenario(scen, duration_s=duration_s, run_id="sweep-base"), scen)
+
+
+def run_case(scen: Scenario, fault: str, victim: str, t_fault: float, duration_s: float,
+             free: dict[str, float] | None = None) -> dict[str, Any]:
+    """One run in one process with ``victim`` killed or silenced at ``t_fault``; ``free`` is
+    :func:`baseline` (each live robot's progress is reported as a share of it)."""
     scen = dataclasses.replace(scen, run=dataclasses.replace(scen.run, on_robot_failure="continue"))
     if fault == "silence":
         scen = dataclasses.replace(scen, network=dataclasses.replace(
@@ -61,10 +86,16 @@ def run_case(scen: Scenario, fault: str, victim: str, t_fault: float, duration_s
     res = run_scenario(scen, duration_s=duration_s, run_id="sweep",
                        kills={victim: t_fault} if fault == "kill" else None)
     f = res.metrics["fleet"]
+    share = None
+    if free:
+        got = progress(res, scen)
+        share = {n: round(got[n] / free[n], 4) for n in got if n != victim and n in free and free[n] > 1e-6}
     return {"scenario": scen.id, "fault": fault, "robot": victim, "t_s": t_fault,
             "collisions": f["collisions"], "min_separation_m": f["min_separation_m"],
             "coordination_error_max_m": f.get("coordination_error_max_m"),
-            "tasks": None if f.get("tasks_total") is None else f"{f['tasks_completed']}/{f['tasks_total']}"}
+            "tasks": None if f.get("tasks_total") is None else f"{f['tasks_completed']}/{f['tasks_total']}",
+            "progress": share, "progress_min": min(share.values()) if share else None,
+            "detours": sum(r.get("detours") or 0 for r in res.metrics["robots"].values())}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -81,21 +112,27 @@ def main(argv: list[str] | None = None) -> int:
         if args.only and not any(prefix.startswith(o) or o.startswith(prefix.rstrip("-")) for o in args.only):
             continue
         scen = api.load(config(prefix), overrides=args.set)
+        free = baseline(scen, duration)
         for fault in args.faults:
             for victim in victims:
                 for t in times:
-                    row = run_case(scen, fault, victim, t, duration)
+                    row = run_case(scen, fault, victim, t, duration, free)
                     rows.append(row)
                     if not args.json:
-                        c = row["coordination_error_max_m"]
+                        c, p = row["coordination_error_max_m"], row["progress_min"]
                         print(f"{row['scenario']:<42} {fault:<8} {victim:<7} {t:5.1f} s  collisions "
                               f"{row['collisions']:2d}  min sep {row['min_separation_m']:.3f} m  "
-                              + (f"coord {c:.3f} m" if c is not None else f"tasks {row['tasks']}"), flush=True)
+                              + (f"coord {c:.3f} m" if c is not None else f"tasks {row['tasks']}")
+                              + (f"  progress >= {100 * p:.0f} %" if p is not None else "")
+                              + f"  detours {row['detours']}", flush=True)
     hit = sum(r["collisions"] > 0 for r in rows)
+    short = sum(r["progress_min"] is not None and r["progress_min"] < 0.9 for r in rows)
     if args.json:
-        print(json.dumps({"runs": rows, "runs_with_contact": hit, "wall_s": round(time.perf_counter() - t0, 1)}))
+        print(json.dumps({"runs": rows, "runs_with_contact": hit, "runs_below_90_percent_progress": short,
+                          "wall_s": round(time.perf_counter() - t0, 1)}))
     else:
-        print(f"{len(rows)} runs, {hit} with contact, {time.perf_counter() - t0:.0f} s")
+        print(f"{len(rows)} runs, {hit} with contact, {short} with a live robot below 90 % of its progress "
+              f"without the failure, {time.perf_counter() - t0:.0f} s")
     return 0
 
 

@@ -75,6 +75,9 @@ class DetourConfig:
     """Largest lateral shift; a lane that needs more on both sides is blocked wall to wall [m]."""
     offset_rate_mps: float = 0.15
     """Largest rate at which the bump's height grows when a detour is widened [m/s]."""
+    stall_detours: bool = True
+    """Whether no progress with a live neighbour on the lane starts a detour (off where the
+    safety filter's own deadlock rule already unwinds head-on jams: docs/detours.md)."""
     stall_s: float = 4.0
     """No progress for this long with a live neighbour on the lane ahead starts a detour [s]."""
     stall_progress_m: float = 0.05
@@ -335,7 +338,7 @@ class DetourPlanner:
         near = [d for d in discs if math.hypot(d.x - p[0], d.y - p[1]) <= reach + d.radius]
         live_near = []
         if self.plan is None and not near:
-            if self.stalled(t):
+            if self.config.stall_detours and self.stalled(t):
                 live_near = [(x, y, r) for x, y, r, held in peers
                              if not held and math.hypot(x - p[0], y - p[1]) <= 1.0]
             if not live_near:

@@ -11,7 +11,8 @@ Tiers (README "Test tiers"; the markers are registered in pyproject.toml):
 
 ``python -m pytest -q`` (pyproject's ``addopts``) runs the fast tier: everything that is none
 of fleet, faults or slow, plus the smoke test. A ``-m`` on the command line replaces that
-selection (``-m 'faults and not slow'``)."""
+selection (``-m 'faults and not slow'``). Naming test files or folders without a ``-m``
+runs every test in them but the slow ones (``python -m pytest -q tests/faults/test_acl.py``)."""
 
 from __future__ import annotations
 
@@ -27,6 +28,13 @@ TESTS = REPO / "tests"
 settings.register_profile("copath", deadline=None, max_examples=60,
                           suppress_health_check=[HealthCheck.too_slow])
 settings.load_profile("copath")
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    """Named files or folders and no ``-m`` of one's own: every test in them but the slow ones."""
+    own_m = any(a == "-m" or (a.startswith("-m") and not a.startswith("--")) for a in config.invocation_params.args)
+    if config.args_source == pytest.Config.ArgsSource.ARGS and not own_m:
+        config.option.markexpr = "not slow"
 
 
 def _under(item: pytest.Item, folder: str) -> bool:

@@ -6,11 +6,12 @@ Tiers (README "Test tiers"; the markers are registered in pyproject.toml):
   marked so here, and so is any test marked with the older name ``integration``, or, under
   tests/faults, any test that takes the ``procs`` fixture (the one that kills by pid).
 - ``faults``: a fault or trust case. Every test under tests/faults is marked so here.
-- ``slow``: a long run, marked by hand on the test.
+- ``long``: a closed-loop run in one process that takes many seconds, marked by hand.
+- ``slow``: a long run (minutes), marked by hand on the test; no tier but its own runs it.
 - ``smoke``: the one fleet test kept in the fast tier (a short E5.5 lockstep fleet).
 
 ``python -m pytest -q`` (pyproject's ``addopts``) runs the fast tier: everything that is none
-of fleet, faults or slow, plus the smoke test. A ``-m`` on the command line replaces that
+of fleet, faults, long or slow, plus the smoke test. A ``-m`` on the command line replaces that
 selection (``-m 'faults and not slow'``). Naming test files or folders without a ``-m``
 runs every test in them but the slow ones (``python -m pytest -q tests/faults/test_acl.py``)."""
 

@@ -127,6 +127,7 @@ def e44_runs():
     return out
 
 
+@pytest.mark.long  # tier: README "Test tiers"
 @pytest.mark.parametrize("mode", list(MODES))
 def test_e4_4_converges_from_all_postures(e44_runs, mode):
     for i in range(4):
@@ -140,6 +141,7 @@ def test_e4_4_converges_from_all_postures(e44_runs, mode):
             assert terr[t >= raw["run"]["settle_s"]].max() < 0.01, (mode, i)
 
 
+@pytest.mark.long  # tier: README "Test tiers"
 def test_e4_4_path_following_needs_less_effort_than_tracking(e44_runs, capsys):
     rows = []
     for i in range(4):

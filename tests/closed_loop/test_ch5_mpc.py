@@ -51,7 +51,7 @@ def e53():
     return run_scenario(_scenario("e5.3-", run=DMPC_RUN))
 
 
-@pytest.mark.parametrize("name", ["e52", "e53"])
+@pytest.mark.parametrize("name", ["e52", pytest.param("e53", marks=pytest.mark.long)])
 def test_dmpc_coordinates_and_follows(name, request):
     res = request.getfixturevalue(name)
     m = res.metrics
@@ -80,6 +80,7 @@ def test_dmpc_flexible_formation_outer_robot_faster(e52):
     assert np.mean(speed["r1"]) > np.mean(speed["r2"])
 
 
+@pytest.mark.long  # tier: README "Test tiers"
 def test_morphing_robots_keep_base_speed(e53):
     """E5.3: every robot spends the same time per period: sigma_i = sigma_B = 0.4 m/s (5.29)."""
     for n, rt in e53.trace.robots.items():
@@ -89,6 +90,7 @@ def test_morphing_robots_keep_base_speed(e53):
         assert sigma == pytest.approx(0.4, abs=0.01), n
 
 
+@pytest.mark.faults  # tier: README "Test tiers"
 @pytest.mark.parametrize("prefix", ["e5.2-", "e5.3-"])
 def test_dmpc_under_delay_and_loss(prefix):
     m = run_scenario(_scenario(prefix, network=FAULTS, run=DMPC_RUN)).metrics
@@ -106,6 +108,7 @@ def e51():
     return run_scenario(_scenario("e5.1-"))
 
 
+@pytest.mark.long  # tier: README "Test tiers"
 def test_leader_following_holds_and_switches_formation(e51):
     m = e51.metrics
     assert m["fleet"]["collisions"] == 0
@@ -132,6 +135,7 @@ def test_leader_following_holds_and_switches_formation(e51):
     assert any(d.get("in_transition") for d in e51.trace.robots["f2"].telemetry)
 
 
+@pytest.mark.faults  # tier: README "Test tiers"
 def test_leader_following_under_delay_and_loss():
     m = run_scenario(_scenario("e5.1-", network=FAULTS)).metrics
     assert m["fleet"]["messages_dropped_by_faults"] > 200
@@ -149,6 +153,7 @@ def _weak_follower(feedback: bool):
     return run_scenario(parse_scenario(raw))
 
 
+@pytest.mark.long  # tier: README "Test tiers"
 def test_formation_feedback_slows_the_leader_for_a_lagging_follower():
     on, off = _weak_follower(True), _weak_follower(False)
     slow_on = min(d["slowdown"] for d in on.trace.robots["leader"].telemetry)
@@ -193,6 +198,7 @@ def _crossing(avoidance: bool, safety: bool = False):
     return run_scenario(parse_scenario(raw)).metrics
 
 
+@pytest.mark.long  # tier: README "Test tiers"
 def test_heterogeneous_collision_avoidance():
     with_avoid, without = _crossing(True), _crossing(False)
     assert without["fleet"]["collisions"] >= 1  # the original scheme has none (Sec. 5.5.5)

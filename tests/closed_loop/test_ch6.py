@@ -46,16 +46,19 @@ def e61():
     return _run("e6.1-", duration=110.0)
 
 
+@pytest.mark.long  # tier: README "Test tiers"
 def test_e6_1_robot_letters_are_all_formed_without_collision(e61):
     _assert_all_formations(e61)
     assert e61.metrics["fleet"]["tasks_total"] == 5
 
 
+@pytest.mark.long  # tier: README "Test tiers"
 def test_e6_1_assignment_cost_is_near_the_centralised_optimum(e61):
     f = e61.metrics["fleet"]
     assert f["assignment_cost"] <= 1.10 * f["assignment_cost_optimal"]
 
 
+@pytest.mark.long  # tier: README "Test tiers"
 def test_e6_1_surplus_robots_wait_clear_of_the_letters(e61):
     """In O and T (M < N) the robots without a role stay unassigned and clear of every
     target, within communication range of the formation."""
@@ -75,6 +78,7 @@ def test_e6_1_surplus_robots_wait_clear_of_the_letters(e61):
     assert n_without == 16 - 10
 
 
+@pytest.mark.long  # tier: README "Test tiers"
 def test_e6_3_circle_with_surplus_robots():
     res = _run("e6.3-")
     _assert_all_formations(res)
@@ -82,6 +86,7 @@ def test_e6_3_circle_with_surplus_robots():
     assert sum(h is not None for h in held) == 12  # M = 12 < N = 16: four without a role
 
 
+@pytest.mark.long  # tier: README "Test tiers"
 def test_e6_4_lattice_with_surplus_positions():
     res = _run("e6.4-")
     _assert_all_formations(res)
@@ -92,7 +97,7 @@ def test_e6_4_lattice_with_surplus_positions():
         assert np.hypot(*(rt.pose[-1, :2] - np.asarray(rt.telemetry[-1]["target"]))) < 0.1
 
 
-@pytest.mark.parametrize("network", [None, FAULTS], ids=["nominal", "delay100-loss10"])
+@pytest.mark.parametrize("network", [None, pytest.param(FAULTS, marks=pytest.mark.faults)], ids=["nominal", "delay100-loss10"])
 def test_e6_5_six_robots_switch_three_formations(network):
     res = _run("e6.5-", network=network)
     _assert_all_formations(res)
@@ -164,7 +169,8 @@ def _switching_run(network=None, **changes):
     return run_scenario(parse_scenario(raw))
 
 
-@pytest.mark.parametrize("network", [None, {"delay_ms": 100, "loss": 0.2}], ids=["nominal", "delay100-loss20"])
+@pytest.mark.parametrize("network", [None, pytest.param({"delay_ms": 100, "loss": 0.2}, marks=pytest.mark.faults)],
+                         ids=["nominal", "delay100-loss20"])
 def test_e6_6_line_column_triangle_on_a_path(network):
     res = _switching_run(network)
     f = res.metrics["fleet"]
@@ -194,6 +200,7 @@ def test_e6_6_line_column_triangle_on_a_path(network):
     assert np.hypot(*(P["r2"] - P["r3"])) == pytest.approx(0.7, abs=0.1)
 
 
+@pytest.mark.long  # tier: README "Test tiers"
 def test_e6_6_repulsion_shapes_crossing_references():
     """Robots 1 and 3 swap sides of the path (their slots cross head-on): without the
     repulsive shaping they collide, with it they pass one behind the other."""

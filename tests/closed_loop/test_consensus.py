@@ -15,7 +15,7 @@ def _assert_converged(m, coord_tol=0.02, path_tol=0.05, speed_tol=0.01):
         assert r["limit_violations"] == 0, name  # the law scales (v, omega) within the limits
 
 
-@pytest.mark.parametrize("prefix", ["e5.5-", "e5.4-", "e5.6-"])
+@pytest.mark.parametrize("prefix", ["e5.5-", pytest.param("e5.4-", marks=pytest.mark.long), "e5.6-"])
 def test_consensus_scenarios_converge(prefix):
     res = run_scenario(load_scenario(config(prefix)))
     m = res.metrics
@@ -34,6 +34,7 @@ def test_consensus_starts_far_from_coordination():
     assert max(t["xi"] for t in tel.values()) - min(t["xi"] for t in tel.values()) > 0.3
 
 
+@pytest.mark.faults  # tier: README "Test tiers"
 def test_e55_survives_delay_and_loss():
     s = load_scenario(config("e5.5-")).with_overrides(network={"delay_ms": 100, "loss": 0.2})
     m = run_scenario(s).metrics
@@ -43,6 +44,7 @@ def test_e55_survives_delay_and_loss():
         assert r["path_error_max_m"] < 0.05
 
 
+@pytest.mark.faults  # tier: README "Test tiers"
 def test_e55_partition_breaks_and_recovers_coordination():
     s = load_scenario(config("e5.5-"))
     raw_parts = [{"links": [["r1", "r2"], ["r2", "r3"]], "start_s": 0.0, "end_s": 25.0}]

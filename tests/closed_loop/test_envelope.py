@@ -14,6 +14,8 @@ from orchestrator.metrics_truth import truth_series
 PLAIN = {"controller.predict_acceleration": False, "controller.age_nominal_s": 1000.0}
 NO_FILTER = ["safety.enabled=false"]  # the controller's own envelope (docs/envelope.md: the filter's)
 
+pytestmark = pytest.mark.faults  # the fault grid: the faults tier (README "Test tiers")
+
 
 def _grid(tmp_path, config, cells, seeds=(1,), fixed=()):
     rows = envelope.run_envelope(config, cells, list(seeds), out_dir=tmp_path, fixed=list(fixed), inprocess=True,

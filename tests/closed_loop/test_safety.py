@@ -30,6 +30,7 @@ def _interventions(m) -> int:
     return sum(r["safety_interventions"] or 0 for r in m["robots"].values())
 
 
+@pytest.mark.long  # tier: README "Test tiers"
 def test_five_robot_dmpc_collides_without_the_filter_and_not_with_it():
     off, on = _five(False), _five(True)
     assert off["fleet"]["collisions"] >= 1  # the start really is dangerous
@@ -53,7 +54,8 @@ def test_five_robot_dmpc_with_delay_and_loss_keeps_apart():
     assert on["fleet"]["coordination_error_max_m"] <= 0.3
 
 
-@pytest.mark.parametrize("network", [None, FAULTS])
+@pytest.mark.parametrize("network", [pytest.param(None, marks=pytest.mark.long),
+                                     pytest.param(FAULTS, marks=pytest.mark.faults)])
 def test_twelve_unicycles_swap_places_across_a_circle_without_colliding(network):
     s = load_scenario(config("e5.6-circle-swap"))
     over = {"network": network} if network else {}
@@ -69,6 +71,7 @@ def test_twelve_unicycles_swap_places_across_a_circle_without_colliding(network)
     assert all(r["limit_violations"] == 0 for r in on["robots"].values())
 
 
+@pytest.mark.long  # tier: README "Test tiers"
 def test_circle_swap_without_the_deadlock_rule_stops_in_a_ring():
     # the same filter with the right-hand rule off: safe, but the robots stop round the centre
     s = load_scenario(config("e5.6-circle-swap"))
@@ -152,6 +155,7 @@ def test_formation_switching_without_its_repulsion_is_kept_apart_by_the_filter()
     assert sum(r["safety_interventions"] for r in m["robots"].values()) > 0
 
 
+@pytest.mark.faults  # tier: README "Test tiers"
 def test_column_at_one_second_delay_and_half_lost_with_the_filter_on():
     # issue 14's goal with the bundled [safety] on: E5.5's robots declare acceleration limits
     # (enforced by the simulator), send their velocity and commit to a tube round the arc it
@@ -189,6 +193,7 @@ def test_robots_that_cannot_stop_at_once_are_still_kept_apart(model, n):
 COMMIT = {"enabled": True, "commit_accel_mps2": 0.1}
 
 
+@pytest.mark.faults  # tier: README "Test tiers"
 @pytest.mark.parametrize("model, n", [({"type": "omni", "a_max": 0.3, "alpha_max": 1.0}, 2),
                                       ({"type": "unicycle", "a_max": 0.3, "alpha_max": 1.0}, 4)])
 def test_committed_plans_keep_robots_driving_head_on_apart_under_delay_and_loss(model, n):
@@ -205,6 +210,7 @@ def test_committed_plans_keep_robots_driving_head_on_apart_under_delay_and_loss(
     assert stats and all("safety_commit_breaks" in c for c in stats.values())
 
 
+@pytest.mark.faults  # tier: README "Test tiers"
 def test_six_robots_coordinate_at_one_second_delay_and_half_lost_with_committed_plans():
     # issue 14's goal with the bundled [safety] on (committed plans): E5.4's chain of six at
     # 1000 ms / 50 %, seed 1, below 0.1 m after settling, no collision, no promise broken

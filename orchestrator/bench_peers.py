@@ -119,7 +119,7 @@ def e54_sixteen():
     from .api import find_scenario  # noqa: PLC0415
     from .validate import validate_table  # noqa: PLC0415
 
-    src = find_scenario("e5.4")
+    src = find_scenario("e5.4-six-robots-lemniscate")
     raw = tomllib.loads(src.read_text())
     a = 4.0
     raw["paths"]["main"]["a"] = a
@@ -147,7 +147,7 @@ def e54_sixteen():
 def copath_scenario(n: int, no_filter: bool):
     from . import api  # noqa: PLC0415
 
-    sc = api.load("e5.4") if n == 6 else e54_sixteen()
+    sc = api.load("e5.4-six-robots-lemniscate") if n == 6 else e54_sixteen()
     if no_filter:
         sc = api.load(sc, {"safety.enabled": False})
     return sc

@@ -44,6 +44,7 @@ def test_e42_realistic_sensing_path_following():
     _check_estimates(est, ["r1"])
 
 
+@pytest.mark.long  # tier: README "Test tiers"
 def test_e55_realistic_sensing_coordination():
     est = _run("e5.5-", True)
     raw = _run("e5.5-", False)
@@ -57,6 +58,7 @@ def test_e55_realistic_sensing_coordination():
     assert envs and all(e.cov is not None and e.cov[0] > 0 and e.cov[2] > 0 for e in envs)
 
 
+@pytest.mark.long  # tier: README "Test tiers"
 def test_e65_realistic_sensing_tasks_without_collision():
     est = _run("e6.5-", True)
     f = est.metrics["fleet"]
@@ -70,6 +72,7 @@ def test_e65_realistic_sensing_tasks_without_collision():
     assert rms0 > 1.3 * rms
 
 
+@pytest.mark.long  # tier: README "Test tiers"
 @pytest.mark.parametrize("solve_time_s", [0.05])
 def test_solve_time_compensation_runs_and_stays_on_target(solve_time_s):
     res = run_scenario(load_scenario(config("e5.5-")).with_overrides(

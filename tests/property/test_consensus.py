@@ -4,6 +4,7 @@ iteration, and the per-robot edge-flow form under message delay, loss and a chan
 neighbour set."""
 
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -105,6 +106,7 @@ def _run_async(A_of_tick, v, ticks, delay, loss, rng):
     return np.array([r.estimate for r in robots]), robots
 
 
+@pytest.mark.faults  # tier: README "Test tiers"
 @settings(max_examples=20)
 @given(connected_graphs(n_min=3, n_max=10), st.integers(1, 4), st.sampled_from([0.0, 0.1, 0.3]), st.integers(0, 10**6),
        st.data())

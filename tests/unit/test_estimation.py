@@ -52,6 +52,7 @@ def _closed_loop_run(seed: int, model, cmd_of, n_steps: int, profile: SensorProf
     return np.array(errs), np.array(covs)
 
 
+@pytest.mark.long  # tier: README "Test tiers" (about 10 s each)
 @pytest.mark.parametrize("model,cmd_of", [(UnicycleModel(), _unicycle_cmd), (OmniModel(), _omni_cmd)],
                          ids=["unicycle", "omni"])
 def test_nees_is_within_chi_square_bounds_over_seeded_runs(model, cmd_of):

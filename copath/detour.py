@@ -181,6 +181,8 @@ class DetourPlan:
     """Lateral offset of the lane the detour leaves and rejoins [m]."""
     started: float
     reason: str
+    abandoned: bool = False
+    """Given up (no progress on the detour for ``stall_s``): the height falls back to 0."""
 
     def u(self, s: float) -> float:
         return self.direction * (s - self.s0)
@@ -246,6 +248,8 @@ class DetourPlanner:
         self._tracked: list[tuple[float, float]] = []  # (t, s) over the last second while tracking
         self._sensed: dict[tuple[int, int], tuple[float, float, float, float]] = {}  # cell -> (x, y, r, t seen)
         self.detours = 0
+        self._quiet_until = -math.inf
+        """No new detour before this time (after one was given up) [s]."""
         self.width = self.radius + config.margin_m + config.clearance_m
 
     # ------------------------------------------------------------------ discs
@@ -350,6 +354,8 @@ class DetourPlanner:
         e_now = float((p - np.array([x0, y0])) @ n0)
         plan = self.plan
         q = plan.q if plan is not None else e_now
+        if plan is None and t < self._quiet_until:
+            return DetourStep(pose, 0.0, events)
         if plan is None:
             reason = None
             blocking = self._blocking(s, q, near, 0.0, self.config.lookahead_m)
@@ -366,7 +372,12 @@ class DetourPlanner:
                     self.detours += 1
                     events.append(("detour_start", {"reason": reason, "side": "left" if plan.target * plan.direction > 0 else "right",
                                                     "offset_m": round(abs(plan.target), 4), "s": round(s, 4)}))
-        else:
+        elif not plan.abandoned and t - plan.started >= self.config.stall_s and self.stalled(t):
+            # no progress on the detour itself (a unicycle that cannot turn round a block seen
+            # too close): give it up smoothly and leave the robot to the safety filter a while
+            plan.abandoned, plan.target = True, 0.0
+            self._quiet_until = t + 2.0 * self.config.stall_s
+        elif not plan.abandoned:
             self._extend(plan, s, near)
         plan = self.plan
         if plan is None:
@@ -374,8 +385,9 @@ class DetourPlanner:
         # the height grows towards the target at a bounded rate (a widened detour does not jump)
         step = self.config.offset_rate_mps * self.dt
         plan.height += max(-step, min(step, plan.target - plan.height)) if plan.height != plan.target else 0.0
-        if plan.done(s):
-            events.append(("detour_end", {"duration_s": round(t - plan.started, 3), "s": round(s, 4)}))
+        if plan.done(s) or (plan.abandoned and plan.height == 0.0):
+            events.append(("detour_end", {"duration_s": round(t - plan.started, 3), "s": round(s, 4),
+                                          "abandoned": plan.abandoned}))
             self.plan = None
             return DetourStep(pose, 0.0, events)
         d = plan.offset(s)

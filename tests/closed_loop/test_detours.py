@@ -58,20 +58,39 @@ def test_one_robot_goes_round_a_sensed_box_and_rejoins_its_path():
 def _check(scen, res, free):
     m = res.metrics
     graded = grade(scen.targets, m)
-    assert all(g.passed for g in graded), [g for g in graded if not g.passed]
+    assert all(g.passed for g in graded), [(g.target.key, g.value) for g in graded if not g.passed]
     assert m["fleet"]["collisions"] == 0
     if m["fleet"]["min_obstacle_clearance_m"] is not None:
         assert m["fleet"]["min_obstacle_clearance_m"] > 0.0
     with_box, without = _progress(res, scen), _progress(free, scen)
     for n in with_box:
         assert with_box[n] >= 0.9 * without[n], (n, with_box[n], without[n])
-    assert all(r["detours"] >= 1 for r in m["robots"].values())
+    assert any(r["detours"] >= 1 for r in m["robots"].values())  # the robots whose lane is blocked
+    assert all(r["stalled_s"] == 0.0 for r in m["robots"].values())
     # coordination among the robots back under 0.05 m within 20 s after the last has passed
-    last = max(e.t for e in res.trace.events if e.what == "detour_end")
-    ser = truth_series(res.trace, scen)
-    after = (ser.t >= last + 20.0)
-    if after.any():
-        assert np.nanmax(ser.coordination_error[after]) < 0.05
+    _recovers(truth_series(res.trace, scen), _passes(res.trace.events))
+
+
+def _recovers(ser, passes, tol: float = 0.05, within: float = 20.0, hold: float = 5.0) -> None:
+    """After each pass of the team round a block (that the run outlasts by ``within``), the
+    coordination error is under ``tol`` at some tick within ``within`` seconds and stays
+    under it for ``hold`` seconds (or until the next pass begins)."""
+    checked = 0
+    for i, (_, end) in enumerate(passes):
+        if end + within > ser.t[-1]:  # the run ends first: back under tol by its end
+            if ser.t[-1] > end:
+                assert ser.coordination_error[-1] < tol, (end, float(ser.coordination_error[-1]))
+                checked += 1
+            continue
+        nxt = passes[i + 1][0] if i + 1 < len(passes) else np.inf
+        e = ser.coordination_error
+        back = np.nonzero((ser.t > end) & (ser.t <= end + within) & (e < tol))[0]
+        assert len(back), f"pass ending at {end:.1f} s: coordination not back under {tol} m within {within} s"
+        t0 = ser.t[back[0]]
+        span = (ser.t >= t0) & (ser.t <= min(t0 + hold, nxt))
+        assert np.nanmax(e[span]) < tol, (end, t0, float(np.nanmax(e[span])))
+        checked += 1
+    assert checked, "no pass ended early enough to check the recovery"
 
 
 @pytest.mark.slow
@@ -80,3 +99,39 @@ def _check(scen, res, free):
 def test_bundled_blocked_lane_scenarios_meet_their_goals(prefix):
     scen = load_scenario(config(prefix))
     _check(scen, run_scenario(scen), run_scenario(_without_obstacles(scen)))
+
+
+def _passes(events) -> list[tuple[float, float]]:
+    """(first detour_start, last detour_end) of each pass of the team round a block: detours
+    that overlap in time belong to one pass."""
+    spans = sorted((e.t, e.what) for e in events if e.what in ("detour_start", "detour_end"))
+    out, open_, start = [], 0, None
+    for t, what in spans:
+        if what == "detour_start":
+            start = t if open_ == 0 else start
+            open_ += 1
+        else:
+            open_ -= 1
+            if open_ == 0:
+                out.append((start, t))
+    return out
+
+
+@pytest.mark.slow
+def test_e5_4_with_r1_killed_the_live_robots_go_round_it():
+    """E5.4 with its front robot r1 killed at 10 s (held still on the lane by the simulator):
+    the live robots go round its disc on every lap, never touch it, make at least 90 % of
+    their progress without the failure, and the robots still connected by the graph (the
+    chain 4-1-3-6-5-2 loses its link to r4 with r1) are back in coordination within 20 s
+    after the last of them has passed."""
+    scen = load_scenario(config("e5.4-")).with_overrides(run={"on_robot_failure": "continue"},
+                                                         metrics={"coordination_pairs": "edges"})
+    res = run_scenario(scen, duration_s=80.0, kills={"r1": 10.0})
+    free = run_scenario(scen, duration_s=80.0)
+    m = res.metrics
+    assert m["fleet"]["collisions"] == 0
+    got, without = _progress(res, scen), _progress(free, scen)
+    for n in ("r2", "r3", "r4", "r5", "r6"):
+        assert got[n] >= 0.9 * without[n], (n, got[n], without[n])
+        assert m["robots"][n]["detours"] >= 1
+    _recovers(truth_series(res.trace, scen), _passes(res.trace.events))

@@ -37,7 +37,6 @@ from typing import Sequence
 from copath.scenario import ConfigError, Scenario
 
 from . import api
-from .validate import validate_file
 
 __all__ = ["main", "build_parser", "summary_table", "targets_table", "failure_lines"]
 
@@ -131,7 +130,7 @@ def _cmd_validate(args: argparse.Namespace) -> int:
         return EXIT_INPUT
     for config in args.configs:
         try:  # --set: changed exactly as copath run --set changes it, then validated alike
-            s = api.load(config, overrides) if overrides else validate_file(config)
+            s = api.load(config, overrides)  # a path, a bundled stem or an experiment id, as copath run takes
         except (ConfigError, ValueError) as exc:
             _print_errors("copath validate", config, exc)
             bad += 1

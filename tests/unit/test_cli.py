@@ -335,3 +335,13 @@ def test_run_scenario_metrics_say_ok_like_api_run():
     assert res.metrics["ok"] is True and res.metrics["failure"] is None
     run = api.run(s, inprocess=True)
     assert run.metrics["ok"] is True and run.ok
+
+
+def test_validate_takes_a_bundled_name_like_run(capsys):
+    """``copath validate e5.5`` means the bundled scenario ``copath run e5.5`` runs."""
+    assert copath(["validate", "e5.5", "e5.4-six-robots-lemniscate"]) == 0
+    out = capsys.readouterr().out
+    assert "e5.5: ok (e5.5-column-lemniscate, 3 robots" in out
+    assert "e5.4-six-robots-lemniscate: ok (e5.4-six-robots-lemniscate, 6 robots" in out
+    assert copath(["validate", "e9.9"]) == 2
+    assert "expected a scenario file, a bundled scenario's file stem or an experiment id" in capsys.readouterr().err

@@ -39,11 +39,15 @@ def _failing_steps(records, keys: Keys, robot: str) -> int:
     return sum(1 for _, k, r in records if k == keys.telemetry(robot) and r.t >= FAIL_AT - 1e-9)
 
 
-def _assert_one_failure_line(err: str, log_hint: str) -> None:
+def _assert_one_failure_line(err: str, log_hint: str, late_s: float = 0.0) -> None:
+    """One line naming r2, its first failing step's time (up to ``late_s`` after FAIL_AT: a
+    realtime robot steps on its own timer) and the exception."""
     lines = [ln for ln in err.splitlines() if "controller step failed" in ln]
     assert len(lines) == 1, err[-3000:]
     line = lines[0]
-    assert "robot r2" in line and f"t={FAIL_AT:.2f} s" in line and "ZeroDivisionError" in line
+    assert "robot r2" in line and "ZeroDivisionError" in line
+    t = float(line.split("failed at t=", 1)[1].split(" s", 1)[0])
+    assert FAIL_AT - 1e-9 <= t <= FAIL_AT + late_s + 0.005, line
     assert log_hint in line
     assert "Traceback" not in err
 
@@ -91,4 +95,34 @@ def test_step_exception_and_nan_payload_as_a_fleet_match_one_process(tmp_path, p
         else:
             assert "controller step failed" not in err
             assert m["robots"]["r1"]["messages_rejected"] == m["robots"]["r3"]["messages_rejected"] > 0
+            assert _nan_heard(log.records, keys) == 0
+
+
+@pytest.mark.fleet
+def test_step_exception_and_nan_payload_in_a_realtime_fleet(tmp_path, procs):
+    """The same misbehaviours under the realtime clock over Zenoh: one failure line, the
+    traceback once, ``controller_errors`` equal to the failing steps in the log, ``--check``
+    exits 3; NaN payloads refused by every receiver and never seen by a controller."""
+    for name, r2, rc_want in (("crash", {"fail_after_s": FAIL_AT}, 3), ("nan", {"nan_after_s": FAIL_AT}, 0)):
+        config = tmp_path / f"{name}.toml"
+        config.write_text(scenario_text(4.0, **r2))
+        out = tmp_path / name
+        p = procs.start(["-m", "orchestrator", "run", str(config), "--out", str(out), "--check", "--no-plots", "-q",
+                         "--clock", "realtime"])
+        _, err = p.communicate(timeout=240)
+        err = err.decode()
+        assert p.returncode == rc_want, err[-3000:]
+        m = json.loads((out / "metrics.json").read_text())
+        assert m["ok"] is True and m["clock"] == "realtime"
+        log = read_log(out / "run.mcap")
+        keys = Keys(m["run_id"])
+        if name == "crash":
+            _assert_one_failure_line(err, str(out / "logs" / "r2.log"), late_s=0.2)  # two periods
+            assert m["robots"]["r2"]["controller_errors"] == _failing_steps(log.records, keys, "r2") > 0
+            assert m["fleet"]["controller_errors"] == m["robots"]["r2"]["controller_errors"]
+            text = (out / "logs" / "r2.log").read_text()
+            assert text.count("Traceback") == 1 and "controller step failed" in text
+        else:
+            assert "controller step failed" not in err
+            assert m["robots"]["r1"]["messages_rejected"] > 0 and m["robots"]["r3"]["messages_rejected"] > 0
             assert _nan_heard(log.records, keys) == 0

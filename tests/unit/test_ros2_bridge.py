@@ -15,7 +15,9 @@ from sim.ros2_bridge import BridgeNode
 
 
 @pytest.fixture
-def bridge():
+def bridge(monkeypatch):
+    # the bridge's rules need no ROS 2: validation's "is ROS 2 installed" check is waived here
+    monkeypatch.setattr("copath.ros2.missing", lambda *a, **k: None)
     scenario = api.load("e5.5", {"world.backend": "ros2", "run.clock": "realtime",
                                  "world.robots.r3.frame": "map", "world.robots.r3.origin": [1.0, 0.0, math.pi / 2]})
     sent = []

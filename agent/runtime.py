@@ -96,6 +96,8 @@ def detour_planner(scenario: Scenario, name: str) -> DetourPlanner | None:
     path (its own, or, for a robot without one such as a Sec. 5.5.5 follower, the one path
     its team's robots follow) with a controller that does not avoid obstacles itself; None
     otherwise (Chapter 6 roles, the unicycle NMPC)."""
+    if not scenario.safety.detours:  # [safety] detours: off unless the scenario turns it on
+        return None
     spec = scenario.robot(name)
     path = spec.path
     if not path:

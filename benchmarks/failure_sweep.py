@@ -71,7 +71,8 @@ def progress(res, scen: Scenario) -> dict[str, float]:
 
 def baseline(scen: Scenario, duration_s: float) -> dict[str, float]:
     """:func:`progress` of the same run without any failure."""
-    scen = dataclasses.replace(scen, run=dataclasses.replace(scen.run, on_robot_failure="continue"))
+    scen = dataclasses.replace(scen, run=dataclasses.replace(scen.run, on_robot_failure="continue"),
+                               safety=dataclasses.replace(scen.safety, detours=True))
     return progress(run_scenario(scen, duration_s=duration_s, run_id="sweep-base"), scen)
 
 
@@ -79,7 +80,9 @@ def run_case(scen: Scenario, fault: str, victim: str, t_fault: float, duration_s
              free: dict[str, float] | None = None) -> dict[str, Any]:
     """One run in one process with ``victim`` killed or silenced at ``t_fault``; ``free`` is
     :func:`baseline` (each live robot's progress is reported as a share of it)."""
-    scen = dataclasses.replace(scen, run=dataclasses.replace(scen.run, on_robot_failure="continue"))
+    # the detour stage on ([safety] detours): the live robots go round the lost one (docs/detours.md)
+    scen = dataclasses.replace(scen, run=dataclasses.replace(scen.run, on_robot_failure="continue"),
+                               safety=dataclasses.replace(scen.safety, detours=True))
     if fault == "silence":
         scen = dataclasses.replace(scen, network=dataclasses.replace(
             scen.network, silence=(Silence(victim, t_fault, duration_s + 1.0),)))

@@ -108,6 +108,11 @@ class SafetyConfig:
 
     enabled: bool = False
     """Filter every robot's command (off unless the scenario turns it on)."""
+    detours: bool = False
+    """Detour round a blocked lane (``copath/detour.py``, docs/detours.md): a path follower
+    leaves its lane round an obstacle or a held robot and rejoins it. Off unless the scenario
+    turns it on (chosen: it changes the figures of runs with a lost robot, which the
+    scenarios and tests before it were measured without; the blocked-lane scenarios turn it on)."""
     gamma: float | None = None
     """Barrier gain gamma [1/s]: a gap h may close at most at rate gamma h, each robot of a pair
     taking half; gamma * dt <= 1 keeps the discrete-time step from overshooting. None: 0.8 / dt

@@ -69,6 +69,9 @@ def config(prefix: str) -> pathlib.Path:
     E5.2 and circle-swap E5.6 cases), a bare ``"e5.2-"`` means the experiment's own scenario:
     the derived ones have longer, more specific names and are asked for by them."""
     matches = sorted(CONFIGS.glob(f"{prefix}*.toml"))
+    base = min(matches, key=lambda m: len(m.stem)) if matches else None
+    if len(matches) > 1 and all(m.stem.startswith(base.stem) for m in matches):
+        matches = [base]  # "e5.4-six-robots": the experiment's scenario, not its "-r1-lost" variant
     if len(matches) > 1 and prefix.count("-") == 1:
         shortest = min(len(m.stem) for m in matches)
         matches = [m for m in matches if len(m.stem) == shortest]

@@ -125,7 +125,8 @@ def test_e5_4_with_r1_killed_the_live_robots_go_round_it():
     chain 4-1-3-6-5-2 loses its link to r4 with r1) are back in coordination within 20 s
     after the last of them has passed."""
     scen = load_scenario(config("e5.4-")).with_overrides(run={"on_robot_failure": "continue"},
-                                                         metrics={"coordination_pairs": "edges"})
+                                                         metrics={"coordination_pairs": "edges"},
+                                                         safety={"detours": True})
     res = run_scenario(scen, duration_s=80.0, kills={"r1": 10.0})
     free = run_scenario(scen, duration_s=80.0)
     m = res.metrics

@@ -462,7 +462,7 @@ class RobotRuntime:
         if self.safety is not None and (ranges is not None or self.lost or self._quiet_for_filter(now)
                                         or self.detour.plan is not None or self.detour.stalled(now)):
             for nb in self.safety.neighbours(now):  # held discs, and live ones to tell teammates in the ring
-                held = nb.age == 0.0 and nb.committed == (0.0, 0.0, 0.0, 0.0)
+                held = nb.held
                 spread = nb.spread if nb.spread is not None else nb.speed_max * nb.age
                 peers.append((nb.position[0], nb.position[1], nb.radius + (0.0 if held else spread), held))
         else:

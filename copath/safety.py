@@ -223,6 +223,9 @@ class Neighbour(NamedTuple):
     """Committed plans: the neighbour keeps within its tube, the disc (``position``, ``spread``)
     moving at (vx, vy) [m/s] and growing at the rate [m/s], and it accelerates by at most the
     last entry [m/s^2] relative to it; None when it has made no such promise for this age."""
+    held: bool = False
+    """A lost robot held still by the simulator: a static disc round where it may have stopped
+    (docs/safety.md, "A lost robot"); the detour stage goes round it (docs/detours.md)."""
 
 
 @dataclass(frozen=True)
@@ -1141,7 +1144,7 @@ class SafetyGuard:
         centre = (0.5 * (x + end[0]), 0.5 * (y + end[1]))
         back = self._back_at.get(sender)
         if back is None:  # at rest, its centre is the point to keep off: no look-ahead of its own
-            return Neighbour(centre, 0.0, nb.radius + reach, nb.speed_max, 0.0, 0.0, False, (0.0, 0.0, 0.0, 0.0))
+            return Neighbour(centre, 0.0, nb.radius + reach, nb.speed_max, 0.0, 0.0, False, (0.0, 0.0, 0.0, 0.0), True)
         since = max(now - back, 0.0) + self._dt
         if since > self._config.max_age_s:
             return None

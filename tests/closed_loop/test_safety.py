@@ -74,11 +74,12 @@ def test_twelve_unicycles_swap_places_across_a_circle_without_colliding(network)
 @pytest.mark.long  # tier: README "Test tiers"
 def test_circle_swap_without_the_deadlock_rule_is_safe_and_stall_detours_unwind_most_of_the_ring():
     # the same filter with the right-hand rule off: safe. The robots stop round the centre, and
-    # the runtime's stall rule (on where the filter's rule is off; docs/detours.md) takes over:
+    # with detours turned on the runtime's stall rule (on where the filter's rule is off;
+    # docs/detours.md) takes over:
     # every robot detours, 8 of the 12 get past the centre within 25 s; a symmetric jam of four
     # stays (docs/detours.md, "What it cannot do")
     s = load_scenario(config("e5.6-circle-swap"))
-    m = run_scenario(s.with_overrides(safety={"enabled": True, "deadlock_turn_rad": 0.0}), duration_s=25.0).metrics
+    m = run_scenario(s.with_overrides(safety={"enabled": True, "deadlock_turn_rad": 0.0, "detours": True}), duration_s=25.0).metrics
     assert m["fleet"]["collisions"] == 0
     assert all(r["detours"] >= 1 and r["stalled_s"] > 4.0 for r in m["robots"].values())
     assert sum(r["path_progress_m"] > 2.0 for r in m["robots"].values()) >= 8  # past the centre (1.5 m)

@@ -1,4 +1,4 @@
-"""``copath agent ... --io ros2``: one robot's agent on the robot's own computer (docs/ros2.md).
+"""``copath agent ... --io ros2``: one robot's agent on the robot's own computer (docs/reference/ros2.md).
 
 The agent reads its robot's pose from ROS 2 and publishes its commands on the robot's
 ``cmd_vel`` itself, with no bridge hop; it talks to its neighbours, the recorder and the

@@ -2,7 +2,7 @@
 
 The node talks through a :class:`copath.wire.link.Link`: over Zenoh in its own process
 (``main``), or on an in-memory bus inside the in-process loop
-(``orchestrator/inprocess.py``), where a synchronous link runs each lockstep step inside
+(``orchestrator/run/inprocess.py``), where a synchronous link runs each lockstep step inside
 the observation's delivery. The node subscribes only to its own observation key and its neighbours' message keys
 (every robot's on a range-limited graph, where its runtime drops what comes from beyond
 range), declares a liveliness token once it is ready, and then:
@@ -80,7 +80,7 @@ class AgentNode:
         self.end_grace_s = 2.0
         """An ``End`` is honoured when the simulator's token goes (it exits after it) or
         when no newer observation follows within this time; an observation after it
-        proves it forged (docs/faults.md)."""
+        proves it forged (docs/reference/faults.md)."""
         self._end_at: float | None = None
         self.watchdog_s = runtime.scenario.run.watchdog_s
         """No observation for this long: command zero velocity and say so (0: off)."""
@@ -124,7 +124,7 @@ class AgentNode:
         a record that does not decode): the barrier counts it as delivered-and-dropped for
         the sender its key names (``peer/<sender>/all``, ``peer/<sender>/to/<me>``), so it
         does not wait for it. Only the key can say who sent it; on an open bus a stranger
-        can publish on any key, as it can publish well-formed messages (docs/faults.md)."""
+        can publish on any key, as it can publish well-formed messages (docs/reference/faults.md)."""
         rel = relative_key(key)
         if len(rel) >= 3 and rel[0] == "peer":
             self.peers.append(_Refused(rel[1]))
@@ -188,7 +188,7 @@ class AgentNode:
 
     def _watchdog(self) -> None:
         """Heard nothing from the simulator for ``watchdog_s``: stop the robot (a zero
-        command) and say so, once until the next observation (docs/faults.md)."""
+        command) and say so, once until the next observation (docs/reference/faults.md)."""
         obs = self.latest_obs
         if self.watchdog_s <= 0 or obs is None or self._tripped or self.ended.is_set():
             return
@@ -208,7 +208,7 @@ class AgentNode:
     def _on_sim_alive(self, key: str, alive: bool) -> None:
         """The simulator's token went: stop, unless it is back within ``run.liveliness_grace_s``
         (a transport reset under CPU starvation drops every token this process sees, and the
-        session reconnects; docs/faults.md). ``_end_due`` acts on it."""
+        session reconnects; docs/reference/faults.md). ``_end_due`` acts on it."""
         if alive:
             if self._sim_gone_at is not None:
                 logger.warning("the simulator's liveliness token is back after %.2f s",
@@ -237,7 +237,7 @@ class AgentNode:
         the previous tick has arrived (``Obs.expect``), so runs are deterministic. The
         wait sleeps on a condition that each arriving peer message signals. A message the
         receiver refused has arrived too (delivered-and-dropped, :meth:`_on_peer_refused`):
-        it is not waited for (docs/faults.md, "Rejected messages and the lockstep barrier")."""
+        it is not waited for (docs/reference/faults.md, "Rejected messages and the lockstep barrier")."""
         self._drain_peers()
         if not self.rt.missing(obs.expect):
             return
@@ -286,7 +286,7 @@ class AgentNode:
     def _first_step(self, obs: Obs, now: float) -> None:
         """Say when this process first stepped; a robot that joined a run in progress also
         puts it on the timeline (``rejoined_stepping``: seconds from its process start to
-        its first command, docs/faults.md)."""
+        its first command, docs/reference/faults.md)."""
         self._first_step_logged = True
         since = time.time() - self.process_start
         # realtime: the start record is older than the process; lockstep: a first tick after 0
@@ -337,7 +337,7 @@ class AgentNode:
         self.link.subscribe(self.keys.obs(name), self._on_obs)
         peer, over = list(self.rt.subscriptions), list(self.rt.overhear_subscriptions)
         # one subscription (one decode) per message: a peer key the overheard keys cover is
-        # received through them and handed to both callbacks (docs/performance.md, P2)
+        # received through them and handed to both callbacks (docs/reference/performance.md, P2)
         self._peer_exprs = peer
         self._also_peer: dict[str, bool] = {}
         for key in over:
@@ -402,7 +402,7 @@ class AgentNode:
                     now = time.time() - self.wall_t0
                     out = self.rt.step(obs, now)
                     # the timing account so far, on every step: a process killed before its
-                    # closing account leaves it in the log all the same (docs/faults.md)
+                    # closing account leaves it in the log all the same (docs/reference/faults.md)
                     out.telemetry.data["deadline_misses"] = extra["deadline_misses"]
                     out.telemetry.data["realtime_periods"] = extra["realtime_periods"]
                     self._emit(out)
@@ -457,7 +457,7 @@ def process_start_time() -> float:
 REALTIME_NICE = 15
 """Realtime: agents lower their scheduling priority by this much (``os.nice``) so that on a
 busy machine the simulator's 100 Hz physics and the router and recorder are served first
-(docs/performance.md, P9-P10: at 128 robots 5 was not enough); 0 leaves it."""
+(docs/reference/performance.md, P9-P10: at 128 robots 5 was not enough); 0 leaves it."""
 
 
 def _yield_to_simulator() -> None:
@@ -493,7 +493,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--robot", required=True, help="robot name in the scenario")
     p.add_argument("--config", required=True, help="scenario file (.toml, or the run's scenario.json)")
     p.add_argument("--io", choices=("zenoh", "ros2"), default="zenoh",
-                   help="ros2: the robot's own odometry and cmd_vel on this computer, no bridge hop (docs/ros2.md)")
+                   help="ros2: the robot's own odometry and cmd_vel on this computer, no bridge hop (docs/reference/ros2.md)")
     p.add_argument("-v", "--verbose", action="store_true")
     add_config_arguments(p)
     args = p.parse_args(argv)

@@ -1,7 +1,7 @@
 """One robot's runtime around its controller: inbox, faults, range filter, envelopes.
 
 :class:`RobotRuntime` is transport-free: the agent process (``agent/node.py``) feeds it
-records received over Zenoh, and the in-process loop (``orchestrator/inprocess.py``)
+records received over Zenoh, and the in-process loop (``orchestrator/run/inprocess.py``)
 feeds it directly, so both run the exact same logic:
 
 1. peer envelopes go through the receiver-side fault layer (``copath.wire.faults``);
@@ -12,7 +12,7 @@ feeds it directly, so both run the exact same logic:
    logged with its traceback and published as a ``controller_error`` event; a robot that
    has lost every other robot (cut off: its own radio most likely went quiet) commands
    zero until it hears one again, unless its controller handles that itself
-   (``handles_cut_off``; docs/faults.md, "Gone quiet");
+   (``handles_cut_off``; docs/reference/faults.md, "Gone quiet");
 4. with ``[safety]`` on, the command passes the decentralised safety filter
    (``copath.safety``), fed with the sender positions of every peer envelope the robot
    overhears (:attr:`RobotRuntime.overhear_subscriptions`, its own fault streams and the
@@ -59,7 +59,7 @@ __all__ = ["RobotRuntime", "StepOutput", "handles_cut_off", "handles_obstacles",
 
 def silent_hold_s(scenario: Scenario) -> float:
     """The latest a robot gone quiet holds itself still, after the stamp of its last message
-    heard [s] (docs/safety.md, "A lost robot"): its radio went quiet within one period after
+    heard [s] (docs/reference/safety.md, "A lost robot"): its radio went quiet within one period after
     that stamp; the last message it received arrived within the network's largest delay
     (``delay_ms`` + ``jitter_ms``) after that and was read at its next step; it is cut off at
     the first step more than one lease (``run.lease_s``) later."""
@@ -70,7 +70,7 @@ def silent_hold_s(scenario: Scenario) -> float:
 def handles_cut_off(scenario: Scenario, name: str) -> bool:
     """Whether robot ``name``'s controller handles being cut off itself: its parameter
     dataclass says so (``handles_cut_off = True``, a class constant; the roles controller,
-    docs/ambiguities.md A38). Read from the scenario, so every robot knows it of every other;
+    docs/reference/ambiguities.md A38). Read from the scenario, so every robot knows it of every other;
     the class is enough (parsing every robot's parameters cost each runtime 0.46 ms per role
     robot, N^2 over a fleet)."""
     try:
@@ -83,7 +83,7 @@ def handles_cut_off(scenario: Scenario, name: str) -> bool:
 def handles_obstacles(scenario: Scenario, name: str) -> bool:
     """Whether robot ``name``'s controller avoids obstacles itself (``handles_obstacles = True``
     on its parameter class: the unicycle NMPC's constraints, Sec. 4.4.3); the runtime's detour
-    stage then leaves it alone (docs/detours.md)."""
+    stage then leaves it alone (docs/reference/detours.md)."""
     try:
         factory = resolve_controller(scenario.robot(name).controller)
     except ConfigError:
@@ -92,7 +92,7 @@ def handles_obstacles(scenario: Scenario, name: str) -> bool:
 
 
 def detour_planner(scenario: Scenario, name: str) -> DetourPlanner | None:
-    """The detour stage of robot ``name`` (docs/detours.md): one for every robot that follows a
+    """The detour stage of robot ``name`` (docs/reference/detours.md): one for every robot that follows a
     path (its own, or, for a robot without one such as a Sec. 5.5.5 follower, the one path
     its team's robots follow) with a controller that does not avoid obstacles itself; None
     otherwise (Chapter 6 roles, the unicycle NMPC)."""
@@ -133,7 +133,7 @@ class StepOutput:
     estimate: Estimate | None = None
     """The pose estimate the controller saw (robots with a ``[sensing]`` estimator)."""
     events: list[Event] = field(default_factory=list)
-    """Timeline events of this step (``faults_injected``: the fault layer's drops, docs/faults.md)."""
+    """Timeline events of this step (``faults_injected``: the fault layer's drops, docs/reference/faults.md)."""
 
 
 @dataclass
@@ -172,7 +172,7 @@ class RobotRuntime:
         self.log_tracebacks = True
         """Log the first controller failure's traceback (an agent process's log); the
         in-process loop turns it off: the traceback travels in the event, the terminal gets
-        one line (``orchestrator/failures.py``)."""
+        one line (``orchestrator/run/failures.py``)."""
         self.seq = 0
         self.sent: dict[str, int] = {"*": 0}
         self.received_from: dict[str, int] = {}
@@ -239,7 +239,7 @@ class RobotRuntime:
         self._overheard_at: dict[str, float] = {}
         """When an overheard envelope of each sender was last delivered to the filter."""
         self.detour = detour_planner(scenario, name)
-        """The detour stage (docs/detours.md): the controller sees its pose moved back onto its
+        """The detour stage (docs/reference/detours.md): the controller sees its pose moved back onto its
         lane while a detour round a blocked lane is under way."""
         self._radii = {r.name: r.model.radius for r in scenario.robots}
         self._positions: dict[str, tuple[float, float, float]] = {}
@@ -287,7 +287,7 @@ class RobotRuntime:
     def refused(self, sender: str) -> None:
         """A message on ``sender``'s key arrived and was refused (schema, origin or stamp):
         delivered-and-dropped for the lockstep barrier (:meth:`missing`), so it is not
-        awaited (docs/faults.md, "Rejected messages and the lockstep barrier"). Attributed by
+        awaited (docs/reference/faults.md, "Rejected messages and the lockstep barrier"). Attributed by
         the key, which names the sender: a refused message's own fields cannot be trusted."""
         if sender != self.name and sender in self._team:
             self.received_from[sender] = self.received_from.get(sender, 0) + 1
@@ -431,7 +431,7 @@ class RobotRuntime:
 
     def _controller_failed(self, exc: BaseException, k: int, now: float) -> Event | None:
         """Count a failed controller step (an exception in ``step()`` or an invalid command;
-        docs/controllers.md, "When step() fails"). The first failure of this robot is logged
+        docs/reference/controllers.md, "When step() fails"). The first failure of this robot is logged
         with its traceback (the process's log) and becomes a ``controller_error`` event
         (robot, time, exception, traceback) that the orchestrator prints as one line; later
         ones are only counted: each failed step's telemetry says ``controller_error`` (the
@@ -451,7 +451,7 @@ class RobotRuntime:
 
     def _detour(self, now: float, pose: np.ndarray, ranges, inbox: list[PeerMessage], events: list[Event],
                 held: bool = False) -> tuple[np.ndarray, float]:
-        """The detour stage (docs/detours.md): the pose the controller sees and the lane's shift,
+        """The detour stage (docs/reference/detours.md): the pose the controller sees and the lane's shift,
         from the range ring, the known obstacles and the other robots' discs (the safety filter's
         when it runs: a lost robot is its held disc; else the positions heard); its
         ``detour_start`` / ``detour_end`` events are appended to ``events``. A robot the runtime
@@ -477,7 +477,7 @@ class RobotRuntime:
         return out.pose, out.offset
 
     def _cut_off(self, now: float) -> bool:
-        """Every robot this robot has heard is lost, at least one by silence (docs/faults.md,
+        """Every robot this robot has heard is lost, at least one by silence (docs/reference/faults.md,
         "Gone quiet"). Heard: in its inbox or, with the safety filter overhearing, in any
         envelope it overheard (a follower that hears only the leader is not cut off when the
         leader goes quiet: it still overhears the others). A robot whose every peer died is
@@ -504,7 +504,7 @@ class RobotRuntime:
                          if s not in self.lost and now - t > self._silent_after + 1e-9)
 
     def _losses(self, now: float) -> list[Event]:
-        """What this robot knows of lost robots, as events when it changes (docs/faults.md):
+        """What this robot knows of lost robots, as events when it changes (docs/reference/faults.md):
         ``peer_lost`` / ``peer_rejoined`` when a token went or came back (:attr:`lost`), and
         ``peer_silent`` (robot, last_heard) / ``peer_heard`` (robot, silent_from) for senders
         heard before but not for the run's lease (``run.lease_s``): these are lost

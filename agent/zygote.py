@@ -1,7 +1,7 @@
 """A pre-imported agent launcher: the imports once, then one forked process per robot.
 
 An agent process spends most of its start-up importing numpy, the controllers, the wire
-code and Zenoh (docs/performance.md, P10). The zygote does that once for a run: it imports
+code and Zenoh (docs/reference/performance.md, P10). The zygote does that once for a run: it imports
 ``agent.node``, reads the run's scenario and builds one controller of each type (which
 imports what that controller imports lazily, e.g. CasADi), and then serves requests on its
 standard input, one JSON line per robot::
@@ -16,7 +16,7 @@ then runs in its own session and process group, writes to its log, shows the com
 answers each request with ``{"name": ..., "pid": ...}``.
 
 No Zenoh session is ever opened in the zygote: a fork after ``zenoh.open`` hangs the child
-(docs/measurements.md); each robot opens its own after the fork.
+(docs/journal/measurements.md); each robot opens its own after the fork.
 """
 
 from __future__ import annotations

@@ -31,7 +31,7 @@ Blocks come from
   explained by a live neighbour's disc (teammates are not obstacles: the safety filter and
   coordination handle them);
 - a lost robot held still: the static disc the safety filter keeps out of
-  (:meth:`copath.safety.SafetyGuard.neighbours`, docs/safety.md "A lost robot"), or without the
+  (:meth:`copath.safety.SafetyGuard.neighbours`, docs/reference/safety.md "A lost robot"), or without the
   filter a disc round its last heard position;
 - no progress: a robot that has moved less than ``stall_progress_m`` along its path for
   ``stall_s`` with a live neighbour's disc on its lane ahead goes round it on its right (the
@@ -40,7 +40,7 @@ Blocks come from
 
 The stage is pure (no clock, no transport): :meth:`DetourPlanner.step` takes the time, pose,
 readings and what the runtime heard, and returns the pose to show the controller and the
-events of the step. docs/detours.md gives the method, its constants and its limits.
+events of the step. docs/reference/detours.md gives the method, its constants and its limits.
 """
 
 from __future__ import annotations
@@ -59,7 +59,7 @@ __all__ = ["DetourConfig", "Disc", "DetourPlan", "DetourPlanner", "DetourStep", 
 
 @dataclass(frozen=True)
 class DetourConfig:
-    """Constants of the detour stage (docs/detours.md; all chosen)."""
+    """Constants of the detour stage (docs/reference/detours.md; all chosen)."""
 
     lookahead_m: float = 1.2
     """How far ahead along the path the lane is checked [m]."""
@@ -77,7 +77,7 @@ class DetourConfig:
     """Largest rate at which the bump's height grows when a detour is widened [m/s]."""
     stall_detours: bool = True
     """Whether no progress with a live neighbour on the lane starts a detour (off where the
-    safety filter's own deadlock rule already unwinds head-on jams: docs/detours.md)."""
+    safety filter's own deadlock rule already unwinds head-on jams: docs/reference/detours.md)."""
     stall_s: float = 4.0
     """No progress for this long with a live neighbour on the lane ahead starts a detour [s]."""
     stall_progress_m: float = 0.05
@@ -210,7 +210,7 @@ class DetourStep:
 
 
 class DetourPlanner:
-    """One robot's detour stage (docs/detours.md).
+    """One robot's detour stage (docs/reference/detours.md).
 
     Parameters
     ----------

@@ -20,7 +20,7 @@ This module holds
   taken by re-propagating the odometry from that time; a chi-square gate rejects outliers.
 
 The chosen values of the ``realistic`` profiles and the derivation of the filter are in
-docs/sensing.md.
+docs/reference/sensing.md.
 """
 
 from __future__ import annotations
@@ -99,7 +99,7 @@ class SensorProfile:
                    if f.name not in ("fix_rate_hz", "heading_rate_hz", "outlier_std_m"))
 
 
-# chosen: values and reasoning in docs/sensing.md ("The realistic profiles")
+# chosen: values and reasoning in docs/reference/sensing.md ("The realistic profiles")
 BUILTIN_PROFILES: dict[str, SensorProfile] = {
     "ideal": SensorProfile(),
     # omnidirectional robots: omnidirectional camera + Monte-Carlo localisation (Sec. 3.1)
@@ -151,7 +151,7 @@ class _SensingTable:
 
     profile: str = "ideal"
     """Sensor profile of every robot: ``ideal`` (the true pose every tick), ``realistic``
-    or a name under ``[sensing.profiles]`` (docs/sensing.md)."""
+    or a name under ``[sensing.profiles]`` (docs/reference/sensing.md)."""
     estimator: bool = True
     """Run the pose EKF in every robot with a non-ideal profile; false: the controller sees
     the latest raw reading."""
@@ -299,7 +299,7 @@ class PoseEKF:
     before t_a fused), the odometry segments after t_a and the measurements taken after
     t_a. Each step replays that window in time order, so a measurement taken at t_m and
     received later is fused exactly where an undelayed one would have been (a
-    fixed-lag re-propagation, docs/sensing.md). The anchor then moves to the newest
+    fixed-lag re-propagation, docs/reference/sensing.md). The anchor then moves to the newest
     segment boundary older than the sensors' latency (at most ``max_delay_s``): anything
     taken before it has already arrived.
     """

@@ -1,5 +1,5 @@
 """The scenario's ``[metrics]`` table: how a run is scored (the definitions are in
-docs/metrics.md)."""
+docs/reference/metrics.md)."""
 
 from __future__ import annotations
 

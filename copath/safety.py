@@ -21,7 +21,7 @@ the simulator) and its message carries its velocity, it lies instead within
 :func:`prediction_bound` of the arc predicted from that velocity (:func:`predict_position`),
 a tighter disc; with only an assumed ``accel_max_mps2``, within a disc around a two-sample
 extrapolation (:class:`SafetyGuard`). A robot whose own model declares ``a_max`` closes a gap
-at most at the speed from which it can still stop in its half (``braking``); docs/safety.md,
+at most at the speed from which it can still stop in its half (``braking``); docs/reference/safety.md,
 "Acceleration limits". The true direction to it is then within
 ``kappa = 2 sin(asin(rho / d) / 2)`` of ``n_ij`` (``rho`` that distance, ``d`` the heard
 separation), so every neighbour row is tightened to ``n_ij^T pdot_i - kappa |pdot_i|``: two
@@ -58,7 +58,7 @@ numbers. A nominal command that already satisfies every row (after the model's o
 saturation) is returned unchanged: the filter is inactive, and bit for bit invisible, away
 from other robots.
 
-Committed plans (``commit_accel_mps2``; docs/safety.md, "Committed plans"): each robot
+Committed plans (``commit_accel_mps2``; docs/reference/safety.md, "Committed plans"): each robot
 promises to stay, for ``commit_horizon_s`` after every envelope it publishes, within
 ``e(tau) = commit_radius_m + commit_speed_mps tau + commit_accel_mps2 tau^2 / 2`` of the arc
 that envelope's position and velocity predict, and keeps every such promise a neighbour may
@@ -71,11 +71,11 @@ of Dunbar and Murray (Automatica 42(4), 2006) let neighbours plan against each o
 
 A robot whose liveliness went (its process died or froze; ``continue``/``restart``) is held still
 by the simulator: it is a static disc round where it may have stopped, kept out of with the
-whole gap and never forgotten with age (:meth:`SafetyGuard._held`; docs/safety.md, "A lost
+whole gap and never forgotten with age (:meth:`SafetyGuard._held`; docs/reference/safety.md, "A lost
 robot"), instead of a position that ages and is forgotten after ``max_age_s``. A robot gone
 quiet (no message for the lease) is kept alike: every robot holds itself still once it has
 lost every other one (the runtime's cut-off rule), so a silent robot stops at a time the others
-can bound from its last stamp (``silent_hold_s`` later; docs/safety.md, "A lost robot").
+can bound from its last stamp (``silent_hold_s`` later; docs/reference/safety.md, "A lost robot").
 
 Deadlock rule (after Wang, Ames and Egerstedt 2017, Sec. VI): when a barrier slows the
 robot, the QP is solved once more with ``u_ref`` the nominal velocity of the steered point
@@ -84,7 +84,7 @@ turned to the right by ``deadlock_turn_rad``; fixed and decentralised, so symmet
 reproducible.
 
 The derivation, the chosen constants and the guarantee are written out in
-``docs/safety.md``. The filter is pure: no clock, no transport; the runtime times it.
+``docs/reference/safety.md``. The filter is pure: no clock, no transport; the runtime times it.
 """
 
 from __future__ import annotations
@@ -109,7 +109,7 @@ class SafetyConfig:
     enabled: bool = False
     """Filter every robot's command (off unless the scenario turns it on)."""
     detours: bool = False
-    """Detour round a blocked lane (``copath/detour.py``, docs/detours.md): a path follower
+    """Detour round a blocked lane (``copath/detour.py``, docs/reference/detours.md): a path follower
     leaves its lane round an obstacle or a held robot and rejoins it. Off unless the scenario
     turns it on (chosen: it changes the figures of runs with a lost robot, which the
     scenarios and tests before it were measured without; the blocked-lane scenarios turn it on)."""
@@ -131,7 +131,7 @@ class SafetyConfig:
     braking: bool = True
     """Robots whose model declares an acceleration limit a_max (enforced by the simulator) get
     braking-distance-aware rows: their share of a gap h closes at most at sqrt(a_max h), the
-    speed from which they can still stop within h / 2 (docs/safety.md, "acceleration limits").
+    speed from which they can still stop within h / 2 (docs/reference/safety.md, "acceleration limits").
     False: first-order rows only, which assume the command is reached at once."""
     max_age_s: float = 2.0
     """A neighbour's position older than this is forgotten [s] (it left communication)."""
@@ -152,10 +152,10 @@ class SafetyConfig:
     right by this angle [rad], same speed; 0 switches the rule off. None: 1.2 rad for
     unicycles (chosen: the circle swap completes clean and under delay and loss), 0 for omni
     robots (they can sidestep; the rule would cost E5.1 its formation under faults);
-    docs/safety.md."""
+    docs/reference/safety.md."""
 
     commit_accel_mps2: float | None = None
-    """Committed plans (docs/safety.md, "Committed plans"): every filtered robot promises to stay,
+    """Committed plans (docs/reference/safety.md, "Committed plans"): every filtered robot promises to stay,
     for ``commit_horizon_s`` after each envelope it publishes, within
     ``commit_radius_m + commit_accel_mps2 tau^2 / 2`` of the arc predicted from that envelope's
     position and velocity (tau the time since its stamp), and its neighbours bound it by that
@@ -199,7 +199,7 @@ class Neighbour(NamedTuple):
     """What the filter knows about another robot: its last heard position and how old it is.
 
     Immutable, with named fields, as a frozen dataclass, but built in a tenth of the time: a
-    guard builds one per heard robot at every step (docs/performance.md, P15)."""
+    guard builds one per heard robot at every step (docs/reference/performance.md, P15)."""
 
     position: tuple[float, float]
     """Centre [x, y] the robot sent [m]."""
@@ -225,7 +225,7 @@ class Neighbour(NamedTuple):
     last entry [m/s^2] relative to it; None when it has made no such promise for this age."""
     held: bool = False
     """A lost robot held still by the simulator: a static disc round where it may have stopped
-    (docs/safety.md, "A lost robot"); the detour stage goes round it (docs/detours.md)."""
+    (docs/reference/safety.md, "A lost robot"); the detour stage goes round it (docs/reference/detours.md)."""
 
 
 @dataclass(frozen=True)
@@ -246,7 +246,7 @@ class Tube:
 
 @dataclass(frozen=True)
 class TubeSet:
-    """The tubes of committed plans (docs/safety.md, "Committed plans") as arrays, one row per
+    """The tubes of committed plans (docs/reference/safety.md, "Committed plans") as arrays, one row per
     :class:`Tube`: the filter's hot path makes no object per plan and step."""
 
     centre: np.ndarray
@@ -282,7 +282,7 @@ class TubeSet:
 
 
 def commit_radius(config: SafetyConfig, tau: float) -> float:
-    """Radius of the committed tube ``tau`` after a plan's stamp [m] (docs/safety.md,
+    """Radius of the committed tube ``tau`` after a plan's stamp [m] (docs/reference/safety.md,
     "Committed plans")."""
     tau = max(tau, 0.0)
     return config.commit_radius_m + config.commit_speed_mps * tau + 0.5 * config.commit_accel_mps2 * tau**2
@@ -340,7 +340,7 @@ def max_turn_rate(model: OmniModel | UnicycleModel) -> float:
 def prediction_bound(tau: float, speed: float, a_max: float, alpha_max: float | None, omega_bound: float,
                      lag: float) -> float:
     """Guaranteed bound on how far a neighbour is, ``tau`` after its message, from the arc
-    predicted with the velocity it sent (:func:`predict_position`) [m] (docs/safety.md,
+    predicted with the velocity it sent (:func:`predict_position`) [m] (docs/reference/safety.md,
     "acceleration limits").
 
     Its body translational velocity b (omni (u, v), unicycle (v, 0)) changes by at most a_max per
@@ -407,7 +407,7 @@ HARD, LOOKAHEAD, TUBE = 0, 1, 2
 _NS = 3  # slack variables
 
 UNICYCLE_TURN_RAD = 1.2
-"""Default turn of the deadlock rule for unicycles [rad] (chosen, docs/safety.md)."""
+"""Default turn of the deadlock rule for unicycles [rad] (chosen, docs/reference/safety.md)."""
 
 SLOWED = 1.0 - 1e-6
 """The deadlock rule applies when a barrier leaves the robot's steered point less than this
@@ -623,13 +623,13 @@ class SafetyFilter:
             # gap h may close at most at the speed c from which it stops, decelerating at a_max,
             # within h / 2 (sqrt(a_max h) in continuous time); that bound shrinks at most at rate
             # a_max while the pair closes at it, so the applied velocity can follow it
-            # (docs/safety.md, "acceleration limits")
+            # (docs/reference/safety.md, "acceleration limits")
             # (discrete: velocity held over dt, shed by a_max dt per period, so it stops within
             # c^2 / (2 a) + c dt / 2 <= h / 2, the positive root c below)
             a_dt = 0.5 * self.model.a_max * self.dt
             stop = np.sqrt(a_dt**2 + self.model.a_max * np.maximum(h, 0.0)) - a_dt
             rhs = -np.minimum(gain * np.maximum(h, 0.0), stop)
-        # committed neighbours (docs/safety.md, "committed plans"): the neighbour stays in its
+        # committed neighbours (docs/reference/safety.md, "committed plans"): the neighbour stays in its
         # tube, a disc moving at c' and growing at e', so this robot alone keeps out of it, with
         # the whole gap: n^T (pdot - c') - e' >= -rate(h), rate = gamma h, or the speed from which
         # it stops relative to the disc within h (deceleration a_max less the disc's own)
@@ -648,7 +648,7 @@ class SafetyFilter:
         h_min = float(h.min()) if len(h) else math.inf
         # a neighbour heard `spread` ago lies anywhere in a disc of that radius, so the true
         # normal is within |n - n_hat| <= kappa of the heard one and the true closing rate is
-        # n^T pdot >= n_hat^T pdot - kappa |pdot| (docs/safety.md, "stale directions")
+        # n^T pdot >= n_hat^T pdot - kappa |pdot| (docs/reference/safety.md, "stale directions")
         kappa = np.zeros(len(h))
         if heard:  # the neighbour rows come first (as _direction_error, with the distances at hand)
             ratio = np.minimum(1.0, spreads / np.maximum(norm[:len(heard)], 1e-9))
@@ -771,7 +771,7 @@ class SafetyFilter:
         robot, where numpy's per-call cost dominates) and with numpy for the committed tubes. A
         row evaluated here may differ from the matrix product in the last bits; the margin,
         many orders above that, makes this test pass only where :meth:`constraints` passes too,
-        so the filter's decisions and commands are those of the full test (docs/performance.md,
+        so the filter's decisions and commands are those of the full test (docs/reference/performance.md,
         P15). Range readings are left to the full test."""
         cfg = self.config
         if cfg.use_ranges and ranges is not None and angles is not None:
@@ -905,7 +905,7 @@ class SafetyGuard:
         Number of range readings per observation (0 without sensors).
     silent_hold_s : float or None
         For a robot gone quiet: how long after its last stamp it holds itself still at the
-        latest (cut off: docs/safety.md, "A lost robot"); None, or more than ``max_age_s``
+        latest (cut off: docs/reference/safety.md, "A lost robot"); None, or more than ``max_age_s``
         (a disc that large is a wall, not a robot), keeps a silent robot as any other,
         forgotten after ``max_age_s``.
     own_rule : Iterable[str]
@@ -954,7 +954,7 @@ class SafetyGuard:
         position and world velocity, and the arc's constants, computed once when published)."""
         self.commit_breaks = 0
         """Control instants at which the robot was outside a tube it committed to (the guarantee's
-        premise broken; docs/safety.md, "Committed plans")."""
+        premise broken; docs/reference/safety.md, "Committed plans")."""
         self.commit_excess_max = 0.0
         """Largest distance outside a committed tube [m]."""
         self._lost_at: dict[str, float] = {}
@@ -1063,7 +1063,7 @@ class SafetyGuard:
         return out
 
     def _neighbour(self, sender: str, now: float) -> Neighbour:
-        """The disc that holds ``sender`` at ``now`` by its last message (docs/safety.md)."""
+        """The disc that holds ``sender`` at ``now`` by its last message (docs/reference/safety.md)."""
         x, y, stamp = self._heard[sender]
         r, s, look = self._bounds[sender]
         age = max(now - stamp, 0.0)
@@ -1073,7 +1073,7 @@ class SafetyGuard:
         vel = self._vel.get(sender)
         if self._commit and vel is not None and age < self._config.commit_horizon_s:
             # the sender keeps within its committed tube around the arc it published
-            # (docs/safety.md, "committed plans"); with an enforced limit, the tighter of the two
+            # (docs/reference/safety.md, "committed plans"); with an enforced limit, the tighter of the two
             speed = self._arcs[sender][0]
             spread = commit_radius(self._config, age)
             if a_max is not None:
@@ -1088,7 +1088,7 @@ class SafetyGuard:
                                (cv[0], cv[1], grow, acc))
         elif a_max is not None and vel is not None:
             # the sender's enforced acceleration limit and its sent velocity: a guaranteed,
-            # tighter disc around the predicted arc (docs/safety.md, "acceleration limits")
+            # tighter disc around the predicted arc (docs/reference/safety.md, "acceleration limits")
             spread = prediction_bound(age, self._arcs[sender][0], a_max, alpha_max, w_bound, self._dt)
             if spread < s * age:
                 nb = Neighbour(self._predict(sender, x, y, age), age, r, s, spread, look, True)
@@ -1104,7 +1104,7 @@ class SafetyGuard:
 
     def _held(self, sender: str, now: float) -> Neighbour | None:
         """A robot lost (its liveliness token went), which the simulator holds still from then on,
-        as a static obstacle (docs/safety.md, "A lost robot"): it drove on, within the discs of
+        as a static obstacle (docs/reference/safety.md, "A lost robot"): it drove on, within the discs of
         :meth:`_neighbour`, from its last stamp until it was held, at most one control period
         after this robot learnt of the loss (the simulator and this robot learn of it from the
         same token, each at its own next tick), and has not moved since. One disc covers all of
@@ -1114,7 +1114,7 @@ class SafetyGuard:
         stale-direction tightening, and is not forgotten with age. None when the hold came more
         than ``max_age_s`` after the last message (forgotten, as any such robot). A robot gone quiet
         holds itself still once cut off, at the latest ``silent_hold_s`` after its last stamp: the
-        same disc with that age (docs/safety.md, "A lost robot").
+        same disc with that age (docs/reference/safety.md, "A lost robot").
 
         Once it is back (a restarted process) and until its first new message is heard, it may
         drive again from one period before this robot knew: that disc, inflated by its speed

@@ -1,6 +1,6 @@
 """Scenario model: one validated object per ``configs/*.toml`` file.
 
-The reference of every table and key (type, default, meaning) is docs/scenarios.md,
+The reference of every table and key (type, default, meaning) is docs/reference/scenarios.md,
 generated from the dataclasses below (``python -m orchestrator.reference``).
 
 The TOML layout (every table optional unless said)::
@@ -11,7 +11,7 @@ The TOML layout (every table optional unless said)::
     [run]       duration_s, dt, clock ("lockstep" | "realtime"), settle_s, seed,
                 tick_timeout_s, rate_hz (realtime controller rate; default 1/dt),
                 until, secure, on_robot_failure, watchdog_s, lease_s, liveliness_grace_s,
-                cut_off ("hold" | "drive"; docs/faults.md)
+                cut_off ("hold" | "drive"; docs/reference/faults.md)
     [network]   delay_ms, jitter_ms, loss, burst_p_gb, burst_p_bg, burst_loss,
                 range_m (0 = fixed graph from robots.neighbours),
                 partitions = [{links = [["r1", "r2"]], start_s, end_s}],
@@ -26,12 +26,12 @@ The TOML layout (every table optional unless said)::
                 neighbours = [...], [robots.controller] per-robot overrides
     [[obstacles]] vertices = [[x, y], ...], velocity = [vx, vy] (optional), known (optional)
     [metrics]   coordination_pairs = "all" | "edges", formation_tolerance_m, task_tolerance_m
-                (copath.metrics_config; docs/metrics.md)
+                (copath.metrics_config; docs/reference/metrics.md)
     [safety]    enabled, gamma, margin_m, speed_max_mps, overhear, ... (copath.safety)
-    [targets]   metric key = threshold, e.g. coordination_error_max_m = 0.1 (copath.targets)
+    [targets]   metric key = threshold, e.g. coordination_error_max_m = 0.1 (copath.grading)
     [world]     backend ("sim" | "ros2"), start_timeout_s, pose_type, cmd_rate_hz,
                 [world.robots.NAME] pose_topic, pose_type, cmd_topic, frame, origin
-                (copath.ros2.config; docs/ros2.md)
+                (copath.ros2.config; docs/reference/ros2.md)
 
 Controller parameters whose key ends in ``_file`` (a string) or ``_files`` (a list) are
 data files relative to the scenario file; the loader replaces them by their content
@@ -61,7 +61,7 @@ from .models import OmniModel, UnicycleModel, make_model
 from .paths import Path, make_path
 from .ros2.config import WorldConfig, parse_world
 from .safety import SafetyConfig
-from .targets import Target, parse_targets
+from .grading import Target, parse_targets
 
 __all__ = [
     "Scenario",
@@ -107,12 +107,12 @@ class RunConfig:
     until: str = "duration"
     """``duration``: the run lasts ``duration_s``; ``tasks_done``: it ends ``until_margin_s``
     after the truth completes the last formation of the task queue (Chapter 6; the rule of
-    docs/metrics.md, M5, :mod:`copath.occupancy`), and at ``duration_s`` at the latest
-    (docs/performance.md, "Runs that end when their work is done")."""
+    docs/reference/metrics.md, M5, :mod:`copath.occupancy`), and at ``duration_s`` at the latest
+    (docs/reference/performance.md, "Runs that end when their work is done")."""
     until_margin_s: float = 5.0
     """``until = "tasks_done"``: simulated time kept after the truth completed the last task [s]."""
     secure: bool = True
-    """Per-run credentials and access control on the run's router (docs/security.md): each
+    """Per-run credentials and access control on the run's router (docs/reference/security.md): each
     robot may publish only under its own keys, only the simulator publishes observations
     and truth, and a session without the run's credentials can neither inject nor read.
     On by default (it costs 3-7 % of lockstep speed); ``false`` for a fleet whose robots
@@ -121,7 +121,7 @@ class RunConfig:
     """What a robot process that dies or freezes (its liveliness lease expires) does to the
     run: ``fail`` ends it; ``continue`` stops that robot where it is and the others go on
     without it; ``restart`` starts its process again, which rejoins from the current
-    world state (docs/faults.md)."""
+    world state (docs/reference/faults.md)."""
     watchdog_s: float = 5.0
     """An agent that hears nothing from the simulator for this long commands zero
     velocity and logs an event (0: off)."""
@@ -129,19 +129,19 @@ class RunConfig:
     """Zenoh transport lease of every process of the run and of its router [s]: a frozen
     process loses its liveliness within about this time. On a machine with far more
     processes than cores (about a hundred robots on two) a starved transport misses a 1 s
-    lease and is reset; a longer lease avoids that (docs/performance.md, P10)."""
+    lease and is reset; a longer lease avoids that (docs/reference/performance.md, P10)."""
     liveliness_grace_s: float = 5.0
     """A liveliness token that disappears counts as a lost process only when it has not come
     back within this time [s]: a transport reset under CPU starvation (the 1 s lease lapses,
-    the client reconnects) is not a loss (docs/faults.md). Under ``continue``/``restart`` the
+    the client reconnects) is not a loss (docs/reference/faults.md). Under ``continue``/``restart`` the
     simulator holds the robot still at once and lets it rejoin, as before."""
     cut_off: str = "hold"
     """What a robot does once it has lost every other robot it has heard, at least one by
     radio silence: ``hold`` (default) stops it until it hears one again, and every safety
     filter keeps a silent robot as a static disc round where it may have stopped (it cannot
     be seen, nor coordinate); ``drive`` lets its controller drive on, blind, and the filters
-    forget it after ``safety.max_age_s`` (docs/faults.md, "Gone quiet"; docs/safety.md).
-    A robot's controller may handle being cut off itself (roles, docs/ambiguities.md A38)."""
+    forget it after ``safety.max_age_s`` (docs/reference/faults.md, "Gone quiet"; docs/reference/safety.md).
+    A robot's controller may handle being cut off itself (roles, docs/reference/ambiguities.md A38)."""
 
     def __post_init__(self) -> None:
         require(self.duration_s > 0, "run.duration_s", self.duration_s, "must be > 0")
@@ -204,9 +204,9 @@ class NetworkConfig:
     range_m: float = 0.0
     """Communication range r [m] (Def. 10); 0 means a fixed graph from robots.neighbours."""
     partitions: tuple[Partition, ...] = ()
-    """Scheduled partitions ``[{links, start_s, end_s}]`` of named links (docs/faults.md)."""
+    """Scheduled partitions ``[{links, start_s, end_s}]`` of named links (docs/reference/faults.md)."""
     silence: tuple[Silence, ...] = ()
-    """Radio silences ``[{robot, start_s, end_s}]`` (docs/faults.md)."""
+    """Radio silences ``[{robot, start_s, end_s}]`` (docs/reference/faults.md)."""
 
     def __post_init__(self) -> None:
         require(self.delay_ms >= 0, "network.delay_ms", self.delay_ms, "must be >= 0")
@@ -262,7 +262,7 @@ class ObstacleSpec:
     """Constant translation velocity [m/s]."""
     known: bool = False
     """On the map every robot is given: robots plan detours round it from the start
-    (docs/detours.md); false: robots know of it only through their range sensors."""
+    (docs/reference/detours.md); false: robots know of it only through their range sensors."""
 
 
 @dataclass(frozen=True)
@@ -287,12 +287,12 @@ class Scenario:
     sensing: SensingConfig = field(default_factory=SensingConfig)
     """Sensor profiles and the robots' estimator (``[sensing]``, copath.estimation)."""
     targets: tuple[Target, ...] = ()
-    """Goals a run is graded against (``[targets]``, :func:`copath.targets.grade`)."""
+    """Goals a run is graded against (``[targets]``, :func:`copath.grading.grade`)."""
     safety: SafetyConfig = SafetyConfig()
     """The per-robot safety filter (``[safety]``, :mod:`copath.safety`); off by default."""
     world: WorldConfig = WorldConfig()
     """Which world the robots live in (``[world]``, :mod:`copath.ros2.config`): copath's
-    simulator (default) or ROS 2 robots (docs/ros2.md)."""
+    simulator (default) or ROS 2 robots (docs/reference/ros2.md)."""
 
     @property
     def robot_names(self) -> tuple[str, ...]:
@@ -575,7 +575,7 @@ def parse_scenario(raw: Mapping[str, Any], base_dir: pathlib.Path | None = None,
                    f"must be <= 1/run.dt = {1.0 / run.dt:g} 1/s so a barrier cannot be overshot in one period")
     _cross_field(run, robots, errs)
     world = errs.take(lambda: parse_world(raw.get("world"), {r.name: r.pose for r in robots}), WorldConfig())
-    if world.ros2:  # ROS 2 robots run on the wall clock and report their own poses (docs/ros2.md)
+    if world.ros2:  # ROS 2 robots run on the wall clock and report their own poses (docs/reference/ros2.md)
         errs.check(run is None or run.clock == "realtime", "run.clock", run.clock if run else None,
                    "world.backend = 'ros2' drives real robots on the wall clock: set run.clock = 'realtime'")
         errs.check(not sensors.enabled, "sensors.enabled", sensors.enabled,

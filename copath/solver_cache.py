@@ -7,7 +7,7 @@ hashes everything it depends on: the serialized symbolic problem (structure and
 numbers), the solver options, the compiler flags, the CasADi version and the machine.
 Any later build with the same key loads the file in a few milliseconds and never calls
 the compiler. Processes that miss the same key at once take a file lock, so the first
-compiles and the others load its result (docs/performance.md, "Solver cache").
+compiles and the others load its result (docs/reference/performance.md, "Solver cache").
 
 The cache lives in ``$COPATH_SOLVER_CACHE`` (default ``$XDG_CACHE_HOME/copath/solvers``,
 else ``~/.cache/copath/solvers``); ``COPATH_SOLVER_CACHE=off`` disables it. A file that

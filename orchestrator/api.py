@@ -31,7 +31,7 @@ import numpy as np
 
 from copath.config import ConfigError, ConfigErrors
 from copath.scenario import Scenario, locate_errors, parse_scenario
-from copath.targets import TargetResult, figure, grade
+from copath.grading import TargetResult, figure, grade
 
 __all__ = [
     "Bundled",
@@ -213,7 +213,7 @@ def load(name: str | pathlib.Path | Scenario, overrides: Mapping[str, Any] | Ite
     """A fully validated scenario (controller parameters included, like ``copath validate``):
     ``name`` is a path, a bundled stem or an experiment id; ``overrides`` maps dotted keys
     to values (or is a list of ``key=value`` strings)."""
-    from .validate import validate_file, validate_table
+    from orchestrator.run.validate import validate_file, validate_table
 
     ov = _as_overrides(overrides)
     if isinstance(name, Scenario):
@@ -283,10 +283,10 @@ class Run:
 
     @property
     def trace(self):
-        """The log as arrays per robot (:class:`orchestrator.metrics.Trace`)."""
+        """The log as arrays per robot (:class:`orchestrator.analysis.metrics.Trace`)."""
         from copath.wire.keys import Keys
 
-        from .metrics import trace_from_records
+        from orchestrator.analysis.metrics import trace_from_records
 
         return trace_from_records(self.records, Keys(self.run_id))
 
@@ -324,13 +324,13 @@ def run(scenario: Scenario | str | pathlib.Path, overrides: Mapping[str, Any] | 
     """
     from copath.wire.keys import valid_run_id
 
-    from .fleet import new_run_id
+    from orchestrator.run.fleet import new_run_id
 
     sc = load(scenario, overrides)
     rid = run_id or new_run_id(sc.id)
     valid_run_id(rid)
     if inprocess:
-        from .inprocess import run_scenario
+        from orchestrator.run.inprocess import run_scenario
 
         if sc.run.clock != "lockstep":
             raise ConfigError(f"run.clock = {sc.run.clock!r} is not allowed in-process; only lockstep runs in-process")
@@ -338,7 +338,7 @@ def run(scenario: Scenario | str | pathlib.Path, overrides: Mapping[str, Any] | 
                            log_dir=None if out_dir is None else pathlib.Path(out_dir) / "logs")
         out = None
         if out_dir is not None:
-            from .mcaplog import write_records
+            from orchestrator.log.mcap import write_records
 
             out = pathlib.Path(out_dir)
             out.mkdir(parents=True, exist_ok=True)
@@ -346,7 +346,7 @@ def run(scenario: Scenario | str | pathlib.Path, overrides: Mapping[str, Any] | 
             if log:
                 write_records(out / "run.mcap", res.records, sc, rid)
         return Run(sc, res.metrics, res.records, out, res.ok, res.metrics["failure"] or "completed")
-    from .fleet import RunOptions, run_fleet
+    from orchestrator.run.fleet import RunOptions, run_fleet
 
     out = pathlib.Path(out_dir) if out_dir is not None else pathlib.Path("runs") / rid
     outcome = run_fleet(sc, RunOptions(out_dir=out, run_id=rid, progress=progress, connect=tuple(connect),
@@ -357,8 +357,8 @@ def run(scenario: Scenario | str | pathlib.Path, overrides: Mapping[str, Any] | 
 def open_run(path: str | pathlib.Path) -> Run:
     """A recorded run read back: a run directory or its ``run.mcap``. Metrics come from
     ``metrics.json`` next to the log, or are recomputed from the log (``copath metrics``)."""
-    from .mcaplog import read_log
-    from .metrics import metrics_from_log
+    from orchestrator.log.mcap import read_log
+    from orchestrator.analysis.metrics import metrics_from_log
 
     p = pathlib.Path(path)
     mcap = p / "run.mcap" if p.is_dir() else p

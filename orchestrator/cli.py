@@ -36,7 +36,7 @@ from typing import Sequence
 
 from copath.scenario import ConfigError, Scenario
 
-from . import api
+from orchestrator import api
 
 __all__ = ["main", "build_parser", "summary_table", "targets_table", "failure_lines"]
 
@@ -85,9 +85,9 @@ def summary_table(metrics: dict) -> str:
 
 
 def failure_lines(metrics: dict) -> list[str]:
-    """The summary's loud part: each robot whose controller failed (docs/controllers.md,
+    """The summary's loud part: each robot whose controller failed (docs/reference/controllers.md,
     "When step() fails"); empty when none did."""
-    from copath.targets import failed_robots
+    from copath.grading import failed_robots
 
     failed = failed_robots(metrics)
     if not failed:
@@ -142,12 +142,12 @@ def _cmd_validate(args: argparse.Namespace) -> int:
 
 def _cmd_controllers(args: argparse.Namespace) -> int:
     """``copath controllers [NAME...]``: every controller type a scenario may name, with each
-    parameter's type, default and meaning (from its parameter dataclass; docs/controller-parameters.md)."""
+    parameter's type, default and meaning (from its parameter dataclass; docs/reference/controller-parameters.md)."""
     import textwrap
 
     from agent.controllers import registered_names, resolve_controller
 
-    from .reference import fields_of
+    from orchestrator.reference import fields_of
 
     names = registered_names()
     unknown = [n for n in args.names if n not in names]
@@ -173,17 +173,17 @@ def _cmd_controllers(args: argparse.Namespace) -> int:
             head = f"{fi.name} ({fi.type}, default {fi.default})"
             print(textwrap.fill(f"{head}: {fi.doc}" if fi.doc else head, width=100, initial_indent="    ",
                                 subsequent_indent="        "))
-    print("or an import path 'package.module:builder' (see docs/controllers.md; every parameter: "
-          "docs/controller-parameters.md)")
+    print("or an import path 'package.module:builder' (see docs/reference/controllers.md; every parameter: "
+          "docs/reference/controller-parameters.md)")
     return 0
 
 
 def _plots(mcap: pathlib.Path, out: pathlib.Path) -> None:
     """The run's figures (``copath plot``), when the plotting module is installed."""
     try:
-        from .plot import plot_run
+        from orchestrator.view.plot import plot_run
     except ImportError:
-        logger.debug("orchestrator.plot is not available; no figures")
+        logger.debug("orchestrator.view.plot is not available; no figures")
         return
     try:
         files = plot_run(mcap, out)
@@ -195,7 +195,7 @@ def _plots(mcap: pathlib.Path, out: pathlib.Path) -> None:
 
 def _finish(args: argparse.Namespace, scenario: Scenario, metrics: dict | None) -> int:
     """Summary table and targets; the exit code of --check."""
-    from copath.targets import failed_robots, grade
+    from copath.grading import failed_robots, grade
 
     if metrics is None:
         return 0
@@ -215,8 +215,8 @@ def _finish(args: argparse.Namespace, scenario: Scenario, metrics: dict | None) 
 def _cmd_run(args: argparse.Namespace) -> int:
     from copath.wire.keys import valid_run_id
 
-    from .fleet import RunOptions, new_run_id, run_fleet
-    from .progress import Progress
+    from orchestrator.run.fleet import RunOptions, new_run_id, run_fleet
+    from orchestrator.run.progress import Progress
 
     try:
         scenario = api.load(args.config, _overrides(args))  # file, bundled stem or experiment id
@@ -290,7 +290,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
 def _cmd_sweep(args: argparse.Namespace) -> int:
     import time
 
-    from . import sweep
+    from orchestrator.studies import sweep
 
     try:
         axes = sweep.parse_axes(args.set)
@@ -345,7 +345,7 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
 def _cmd_envelope(args: argparse.Namespace) -> int:
     import time
 
-    from . import envelope, sweep
+    from orchestrator.studies import envelope, sweep
 
     try:
         path = api.find_scenario(args.config)
@@ -421,7 +421,7 @@ def _run_facts(log: pathlib.Path, info: dict) -> dict:
 
 
 def _cmd_info(args: argparse.Namespace) -> int:
-    from .replay import format_info, log_info, print_json
+    from orchestrator.log.replay import format_info, log_info, print_json
 
     try:
         info = log_info(args.log)
@@ -451,7 +451,7 @@ def _cmd_info(args: argparse.Namespace) -> int:
 
 def _cmd_metrics(args: argparse.Namespace) -> int:
     """``copath metrics RUN.mcap [--out FILE]``: metrics.json recomputed from a run log."""
-    from .metrics import metrics_from_log
+    from orchestrator.analysis.metrics import metrics_from_log
 
     try:
         m = metrics_from_log(args.log)
@@ -471,14 +471,14 @@ def _cmd_metrics(args: argparse.Namespace) -> int:
 def _cmd_replay(args: argparse.Namespace) -> int:
     import threading
 
-    from .replay import replay
+    from orchestrator.log.replay import replay
 
     live = feeder = None
     stop = threading.Event()
     try:
         if args.live is not None:  # the log's Foxglove views, served while it replays
-            from .live import LiveViz, serve_log
-            from .viz import TOPICS
+            from orchestrator.view.live import LiveViz, serve_log
+            from orchestrator.view.foxglove import TOPICS
 
             if not pathlib.Path(args.log).is_file():
                 raise FileNotFoundError(f"run log {args.log!r} does not exist")
@@ -505,7 +505,7 @@ def _cmd_replay(args: argparse.Namespace) -> int:
 
 
 def _cmd_plot(args: argparse.Namespace) -> int:
-    from .plot import plot_run
+    from orchestrator.view.plot import plot_run
 
     try:
         files = plot_run(args.log, args.out, animate=args.animate, progress=True)
@@ -518,8 +518,8 @@ def _cmd_plot(args: argparse.Namespace) -> int:
 
 
 def _cmd_export(args: argparse.Namespace) -> int:
-    """``copath export --ros2 RUN.mcap OUT.mcap``: the run as a ROS 2 bag (orchestrator/export.py)."""
-    from .export import export_ros2
+    """``copath export --ros2 RUN.mcap OUT.mcap``: the run as a ROS 2 bag (orchestrator/log/export.py)."""
+    from orchestrator.log.export import export_ros2
 
     if not pathlib.Path(args.log).is_file():
         print(f"copath export: {args.log} = no such run log", file=sys.stderr)
@@ -558,7 +558,7 @@ def _cmd_scenarios(args: argparse.Namespace) -> int:
 
 
 def _cmd_bench(args: argparse.Namespace, rest: list[str]) -> int:
-    from .bench import main as bench_main
+    from orchestrator.studies.bench.harness import main as bench_main
 
     return bench_main(args.what, rest)
 
@@ -567,7 +567,7 @@ LOG_LEVELS = ("debug", "info", "warning", "error")
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from .mcaplog import software_version
+    from orchestrator.log.mcap import software_version
 
     common = argparse.ArgumentParser(add_help=False)
     common.add_argument("--log-level", choices=LOG_LEVELS, default=argparse.SUPPRESS,
@@ -602,14 +602,14 @@ def build_parser() -> argparse.ArgumentParser:
                    help="serve live Foxglove views on ws://localhost:PORT while the fleet runs [8765]")
     r.add_argument("--on-robot-failure", choices=("fail", "continue", "restart"),
                    help="when a robot process dies or freezes: end the run, go on without it, or restart it "
-                        "(run.on_robot_failure; docs/faults.md)")
+                        "(run.on_robot_failure; docs/reference/faults.md)")
     r.add_argument("--external", action="append", default=[], metavar="ROBOT",
                    help="do not start this robot: print its copath agent command and wait for it (repeatable)")
     r.add_argument("--secure", action=argparse.BooleanOptionalAction, default=None,
                    help="per-run credentials and access control on the run's router (run.secure, on by "
-                        "default; --no-secure for robots behind a router of their own; docs/security.md)")
+                        "default; --no-secure for robots behind a router of their own; docs/reference/security.md)")
     r.add_argument("--ros2", action="store_true",
-                   help="mirror the run into ROS 2 live: /<robot>/odom, /<robot>/plan, /paths/* (docs/ros2.md)")
+                   help="mirror the run into ROS 2 live: /<robot>/odom, /<robot>/plan, /paths/* (docs/reference/ros2.md)")
     r.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     sw = sub.add_parser("sweep", help="run the product of settings and seeds; one table and plots", parents=[common])
     sw.add_argument("config", help="scenario file, bundled file stem or experiment id")
@@ -668,7 +668,7 @@ def build_parser() -> argparse.ArgumentParser:
     pl.add_argument("log")
     pl.add_argument("--out", help="output directory [the log's directory]")
     pl.add_argument("--animate", action="store_true", help="also write an animation of the run")
-    ex = sub.add_parser("export", help="write a run log in another format (--ros2: a ROS 2 bag; docs/ros2.md)",
+    ex = sub.add_parser("export", help="write a run log in another format (--ros2: a ROS 2 bag; docs/reference/ros2.md)",
                         parents=[common])
     ex.add_argument("--ros2", action="store_true", required=True,
                     help="a ROS 2 bag: MCAP, cdr encoding, ros2msg schemas (odom, tf, plans, reference paths)")

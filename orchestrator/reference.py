@@ -1,7 +1,7 @@
 """The reference tables of the docs, generated from the code so that they cannot drift.
 
-``python -m orchestrator.reference`` rewrites the generated blocks of docs/scenarios.md,
-docs/controller-parameters.md and docs/controllers.md (the ``Path`` API) from the
+``python -m orchestrator.reference`` rewrites the generated blocks of docs/reference/scenarios.md,
+docs/reference/controller-parameters.md and docs/reference/controllers.md (the ``Path`` API) from the
 scenario's config dataclasses (their attribute docstrings, types and defaults), the path
 constructors, the target table and the controller registry; ``--figures`` also draws
 docs/img/path-<type>.png, one small figure per path type. ``--check`` exits 1 when a
@@ -212,7 +212,7 @@ def _sensing() -> str:
 
 
 def path_figure_examples() -> dict[str, dict[str, Any]]:
-    """One example table per path type (the figures of docs/scenarios.md draw these)."""
+    """One example table per path type (the figures of docs/reference/scenarios.md draw these)."""
     from copath.paths import PATH_TYPES
 
     ex = {
@@ -244,7 +244,7 @@ def _paths() -> str:
         doc = " ".join(inspect.getdoc(fn).split("\n\n")[0].split())
         ex = ", ".join(f"{k} = {_literal(v)}" for k, v in examples[kind].items())
         out.append(f"**`{kind}`**: {_md(doc)}\n\n- keys: {', '.join(keys)}\n- figure: `{{ {ex} }}`\n\n"
-                   f"![path type {kind}](img/path-{kind}.png)")
+                   f"![path type {kind}](../img/path-{kind}.png)")
     return "\n\n".join(out)
 
 
@@ -287,7 +287,7 @@ def _safety() -> str:
 
 
 def _targets() -> str:
-    from copath.targets import AT_MOST, TARGETS
+    from copath.grading import AT_MOST, TARGETS
 
     lines = ["| key | graded on | direction | passes when |", "|---|---|---|---|"]
     for key, (scope, sense) in TARGETS.items():
@@ -381,7 +381,7 @@ BLOCKS: dict[str, Callable[[], str]] = {
 }
 """Generated block name -> the function that writes its markdown."""
 
-PAGES = ("scenarios.md", "controller-parameters.md", "controllers.md")
+PAGES = ("reference/scenarios.md", "reference/controller-parameters.md", "reference/controllers.md")
 """The docs pages (under docs/) that hold generated blocks."""
 
 _BLOCK_RE = re.compile(r"(<!-- generated: ([\w-]+) -->\n)(.*?)(<!-- end generated -->)", re.S)

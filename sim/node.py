@@ -1,7 +1,7 @@
 """The simulator node: owns time and the world, talks to the robots through a link.
 
 The node runs over Zenoh in its own process (``main``) or on the in-memory bus of the
-in-process loop (``orchestrator/inprocess.py``): the same lockstep protocol either way
+in-process loop (``orchestrator/run/inprocess.py``): the same lockstep protocol either way
 (:class:`copath.wire.link.Link`).
 
 ``lockstep`` clock: tick k+1 starts when every live robot has answered tick k, or after
@@ -12,7 +12,7 @@ commands are applied when they arrive.
 
 A robot whose liveliness token disappears (its process died) and does not come back within
 ``run.liveliness_grace_s`` ends the run with a failure record, so the orchestrator can report
-it and the log stays readable (docs/faults.md).
+it and the log stays readable (docs/reference/faults.md).
 """
 
 from __future__ import annotations
@@ -49,7 +49,7 @@ class TaskWatch:
     task queue (Chapter 6, controller ``roles``).
 
     A controller never grades itself: the rule is the metrics' own
-    (:mod:`copath.occupancy`, docs/metrics.md M5): the true positions occupy the targets
+    (:mod:`copath.occupancy`, docs/reference/metrics.md M5): the true positions occupy the targets
     the team announced for the last formation, one robot per target, within the task
     tolerance. Only the announced targets come from the robots' telemetry
     (``formation_targets``, data); the positions are the simulator's. Each robot publishes
@@ -185,7 +185,7 @@ class SimNode:
         ``continue`` and ``restart`` put ``robot_lost`` and, when its radio is back,
         ``robot_rejoined`` on the timeline (``cause = "silence"``). The robot is not held: its
         process is alive and its controller drives it, cut off; a restart cannot bring a
-        radio back, so ``restart`` is ``continue`` here (docs/faults.md)."""
+        radio back, so ``restart`` is ``continue`` here (docs/reference/faults.md)."""
         net = self.scenario.network
         for what, detail in windows_between(net, t0, t1):
             self._event(what, **detail)

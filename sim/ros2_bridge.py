@@ -1,6 +1,6 @@
 """The ROS 2 world: the simulator's side of the wire, with ROS 2 robots instead of a simulation.
 
-``[world] backend = "ros2"`` (docs/ros2.md): the orchestrator starts this process
+``[world] backend = "ros2"`` (docs/reference/ros2.md): the orchestrator starts this process
 (``python -m sim.ros2_bridge``) where it would start the simulator. It is a
 :class:`sim.node.SimNode` (same start handshake, liveliness, failure policies, fault
 windows, events, end and closing account) whose world is the robots' own reports:
@@ -56,7 +56,7 @@ logger = logging.getLogger("copath.ros2_bridge")
 __all__ = ["BridgeNode", "ZERO_HOLD_S", "main"]
 
 ZERO_HOLD_S = 0.5
-"""After the end, zero Twists keep going out for this long [s] (docs/ros2.md)."""
+"""After the end, zero Twists keep going out for this long [s] (docs/reference/ros2.md)."""
 ZERO_PERIOD_S = 0.02
 """...every this often [s]."""
 

@@ -1,7 +1,7 @@
 """Sensor models of one robot (pure; the simulator's :class:`sim.world.World` drives them).
 
 What a real robot of the dissertation would receive instead of its true pose
-(Secs. 3.1-3.2, 5.5.4; profiles in ``copath.estimation``, values in docs/sensing.md):
+(Secs. 3.1-3.2, 5.5.4; profiles in ``copath.estimation``, values in docs/reference/sensing.md):
 
 - **position fixes** taken at ``fix_rate_hz`` from the true position at that instant, with
   Gaussian noise, occasional outliers, and delivered ``fix_latency_s`` later, stamped

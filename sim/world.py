@@ -6,7 +6,7 @@ beyond them is counted as a limit violation) and integrated exactly over the tic
 poses, requested and applied commands live in arrays, one row per robot, and each model
 kind saturates its rows at once (unicycles: the curvature-preserving scaling of
 Sec. 5.5.3; omni robots: the common wheel-speed scaling of (3.2)), so a realtime
-simulator steps hundreds of robots at 100 Hz (docs/performance.md). Observations carry the pose with optional
+simulator steps hundreds of robots at 100 Hz (docs/reference/performance.md). Observations carry the pose with optional
 Gaussian noise (or, with a ``[sensing]`` profile, the raw readings and measurements of
 the robot's sensor models, ``sim/sensing.py``) and, when enabled, a ring of range readings computed from the true
 geometry of the obstacles (``sim/geometry.py``) and of the other robots' discs.

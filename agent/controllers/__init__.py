@@ -11,7 +11,7 @@
    which the orchestrator extends with the scenario file's directory and the directory
    ``copath run`` was started from, for its own process and every child it spawns.
 
-See ``docs/controllers.md`` for the contract.
+See ``docs/reference/controllers.md`` for the contract.
 """
 
 from __future__ import annotations
@@ -31,25 +31,25 @@ ENTRY_POINT_GROUP = "copath.controllers"
 
 CONTROLLERS: dict[str, str] = {
     # Sec. 5.5: Lyapunov path following + second-order consensus (unicycles)
-    "consensus": "agent.controllers.consensus:build",
+    "consensus": "agent.controllers.consensus.controller:build",
     # Sec. 4.2: omni NMPC path following / trajectory tracking
-    "omni_nmpc_pf": "agent.controllers.omni_nmpc:build_path_following",
-    "omni_nmpc_tt": "agent.controllers.omni_nmpc:build_trajectory_tracking",
+    "omni_nmpc_pf": "agent.controllers.omni_nmpc.controller:build_path_following",
+    "omni_nmpc_tt": "agent.controllers.omni_nmpc.controller:build_trajectory_tracking",
     # Sec. 4.3: LTV-MPC QP with a velocity profile
-    "ltv_mpc": "agent.controllers.ltv_mpc:build",
+    "ltv_mpc": "agent.controllers.ltv_mpc.controller:build",
     # Sec. 4.4: unicycle NMPC blending path following and trajectory tracking
-    "unicycle_nmpc": "agent.controllers.unicycle_nmpc:build",
+    "unicycle_nmpc": "agent.controllers.unicycle_nmpc.controller:build",
     # Sec. 5.3: leader-following NMPC
-    "leader_nmpc": "agent.controllers.leader_following:build_leader",
-    "follower_nmpc": "agent.controllers.leader_following:build_follower",
+    "leader_nmpc": "agent.controllers.leader_following.controller:build_leader",
+    "follower_nmpc": "agent.controllers.leader_following.controller:build_follower",
     # Sec. 5.4: distributed MPC (with morphing for several paths)
-    "dmpc": "agent.controllers.dmpc:build",
+    "dmpc": "agent.controllers.dmpc.controller:build",
     # Sec. 5.5.5: heterogeneous team
-    "hetero_leader": "agent.controllers.heterogeneous:build_leader",
-    "hetero_follower": "agent.controllers.heterogeneous:build_follower",
+    "hetero_leader": "agent.controllers.heterogeneous.controller:build_leader",
+    "hetero_follower": "agent.controllers.heterogeneous.controller:build_follower",
     # Ch. 6: role assignment and formation switching; E6.6 switching on a path
     "roles": "agent.controllers.roles:build",
-    "formation_switching": "agent.controllers.formation_switching:build",
+    "formation_switching": "agent.controllers.formation_switching.controller:build",
 }
 
 

@@ -5,9 +5,9 @@ A user controller imports from here only::
 
     from copath.control import Observation, PeerMessage, Outgoing, StepResult, RobotContext
 
-See ``docs/controllers.md`` for the contract and how to test a controller.
+See ``docs/reference/controllers.md`` for the contract and how to test a controller.
 
-The kit (shared by the built-in controllers; ``docs/controllers-notes.md`` says what
+The kit (shared by the built-in controllers; ``docs/reference/controllers-notes.md`` says what
 moved where):
 
 - :class:`LatestMessages` (:mod:`copath.control.inbox`): the newest message per

@@ -3,12 +3,12 @@
 A controller is a plain object built once per robot and stepped every control period.
 It imports no zenoh, msgpack or clock; it runs unchanged inside an agent process over
 Zenoh (``agent/node.py``) and in the in-process loop used by tests and benchmarks
-(``orchestrator/inprocess.py``).
+(``orchestrator/run/inprocess.py``).
 
 Telemetry contract
 ------------------
 ``StepResult.telemetry`` is a flat dict of plain values (floats, ints, bools, lists of
-floats, or None) recorded every step and used by ``orchestrator/metrics.py``:
+floats, or None) recorded every step and used by ``orchestrator/analysis/metrics.py``:
 
 ``ref``                [x, y, theta] the pose the robot should be at now (path reference
                        point, tracked trajectory point or formation slot); path and
@@ -26,9 +26,9 @@ floats, or None) recorded every step and used by ``orchestrator/metrics.py``:
 ``target``             [x, y] assigned target position or None (Ch. 6).
 ``conflicts_resolved`` cumulative count of negotiations this robot initiated (Ch. 6).
 ``leading``, ``term``  whether this robot leads its leader-following team (Sec. 5.3) and
-                       the election term it knows (0 until a leader is lost, docs/faults.md).
+                       the election term it knows (0 until a leader is lost, docs/reference/faults.md).
 Keys that do not apply are simply left out. With ``[safety]`` on, the runtime adds
-``safety_active``, ``safety_change`` and ``safety_ms`` (``copath.safety``, docs/safety.md);
+``safety_active``, ``safety_change`` and ``safety_ms`` (``copath.safety``, docs/reference/safety.md);
 controllers never set them.
 """
 

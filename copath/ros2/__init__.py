@@ -1,4 +1,4 @@
-"""ROS 2 worlds and views of a copath run (docs/ros2.md).
+"""ROS 2 worlds and views of a copath run (docs/reference/ros2.md).
 
 This package is importable without ROS 2: :mod:`copath.ros2.config` (the ``[world]``
 table) and :mod:`copath.ros2.frames` (pose and frame conversions) are pure.

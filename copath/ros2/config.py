@@ -16,7 +16,7 @@
                                   # "start" (the robot's scenario pose; default for odometry)
     commands = "bridge"           # who publishes cmd_vel: "bridge" or "agent" (copath agent --io ros2)
 
-docs/ros2.md explains each key, the QoS and what the run's log records.
+docs/reference/ros2.md explains each key, the QoS and what the run's log records.
 """
 
 from __future__ import annotations
@@ -68,7 +68,7 @@ class RobotIO:
 class WorldConfig:
     backend: str = "sim"
     """``sim``: copath's simulator owns the truth. ``ros2``: a bridge process drives ROS 2
-    robots, and the log's world records are the poses they reported (docs/ros2.md)."""
+    robots, and the log's world records are the poses they reported (docs/reference/ros2.md)."""
     start_timeout_s: float = 30.0
     """ROS 2: how long the bridge waits for every robot's first pose before tick 0 [s]."""
     cmd_rate_hz: float = 20.0

@@ -1,4 +1,4 @@
-"""Planar poses and ROS 2 frames (pure: numbers in, numbers out; docs/ros2.md, "Frames").
+"""Planar poses and ROS 2 frames (pure: numbers in, numbers out; docs/reference/ros2.md, "Frames").
 
 ROS messages carry a 3-D pose with a quaternion; copath's robots live in the plane,
 (x, y, theta) as in (3.1)/(3.3). A pose source reports poses in its own frame (a robot's

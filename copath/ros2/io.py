@@ -1,6 +1,6 @@
 """ROS 2 message and QoS helpers (rclpy is imported inside each function, never at import).
 
-The one place that says which QoS copath uses on ROS 2 (docs/ros2.md, "QoS"):
+The one place that says which QoS copath uses on ROS 2 (docs/reference/ros2.md, "QoS"):
 
 - poses (nav_msgs/Odometry, geometry_msgs/PoseStamped) are *subscribed* best effort,
   keep last 5, volatile: the sensor-data profile, which matches both reliable and
@@ -29,7 +29,7 @@ ZERO = (0.0, 0.0, 0.0)
 def init() -> None:
     """Initialise rclpy for this process (``ROS_DOMAIN_ID`` from the environment is
     respected by rclpy itself). rclpy's own signal handlers are not installed: the
-    caller's SIGINT/SIGTERM handling stops the robots first (docs/ros2.md, zero on exit)."""
+    caller's SIGINT/SIGTERM handling stops the robots first (docs/reference/ros2.md, zero on exit)."""
     import rclpy  # noqa: PLC0415
     from rclpy.signals import SignalHandlerOptions  # noqa: PLC0415
 

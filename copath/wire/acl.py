@@ -1,7 +1,7 @@
-"""Who may do what on a run's bus: the access policy of secure mode (docs/security.md).
+"""Who may do what on a run's bus: the access policy of secure mode (docs/reference/security.md).
 
 One policy, two enforcers. The run's Zenoh router enforces it in a secure fleet
-(``orchestrator/security.py`` turns :func:`grants` into Zenoh's ``access_control``
+(``orchestrator/run/security.py`` turns :func:`grants` into Zenoh's ``access_control``
 block), and the in-process bus enforces it in every in-process run
 (:class:`copath.wire.link.MemoryBus` with a :class:`AccessPolicy`), where a node that
 publishes or subscribes outside its grants raises :class:`AccessDenied` at once instead
@@ -117,4 +117,4 @@ class AccessPolicy:
             allowed = ", ".join(getattr(self.grants_of(proc), action))
             verb = _VERBS[action]
             raise AccessDenied(f"{proc} may not {verb} {key_expr!r} in secure mode; "
-                               f"{proc} may {verb}: {allowed} (docs/security.md)")
+                               f"{proc} may {verb}: {allowed} (docs/reference/security.md)")

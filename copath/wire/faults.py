@@ -32,7 +32,7 @@ SILENT_AFTER_S = 1.0
 robot-to-robot message for the run's transport lease (``run.lease_s``, default 1 s) counts as
 lost there (``Observation.lost``), and a radio silence that long is handed to
 ``run.on_robot_failure``, so a frozen process and a silent radio are found alike, whatever
-the lease (docs/faults.md, "When a robot dies, freezes or goes quiet")."""
+the lease (docs/reference/faults.md, "When a robot dies, freezes or goes quiet")."""
 
 
 def _h(name: str) -> int:
@@ -100,7 +100,7 @@ class LinkFaults:
 def windows_between(net: NetworkConfig, t0: float, t1: float) -> list[tuple[str, dict]]:
     """Partition and radio-silence windows that open or close in [t0, t1):
     ``("partition_start" | "partition_end" | "silence_start" | "silence_end", detail)``, for
-    the run's timeline of injected faults (docs/faults.md)."""
+    the run's timeline of injected faults (docs/reference/faults.md)."""
     out = []
     for i, p in enumerate(net.partitions):
         detail = {"index": i, "links": [list(link) for link in p.links], "start_s": p.start_s, "end_s": p.end_s}
@@ -122,7 +122,7 @@ def silence_outages(net: NetworkConfig, t0: float, t1: float,
     """Radio silences that become a robot's loss in [t0, t1): ``("silent", detail)`` at
     ``start_s + after_s`` for a window longer than ``after_s`` (no one has heard the robot
     for that long), ``("heard", detail)`` at its ``end_s``. The simulator applies
-    ``run.on_robot_failure`` to them (docs/faults.md)."""
+    ``run.on_robot_failure`` to them (docs/reference/faults.md)."""
     out = []
     for i, s in enumerate(getattr(net, "silence", ())):
         if s.end_s - s.start_s <= after_s:

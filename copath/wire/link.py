@@ -7,11 +7,11 @@ subscribe to key expressions, declare liveliness tokens and watch them. Behind t
 - :class:`MemoryLink` on a :class:`MemoryBus`: every node of a run in one process. A
   publish delivers the record object to every matching subscriber *synchronously*, in the
   publisher's thread, without packing it (``synchronous = True``), so the in-process loop
-  (``orchestrator/inprocess.py``) runs the very same node code, lockstep protocol
+  (``orchestrator/run/inprocess.py``) runs the very same node code, lockstep protocol
   included, with no threads and no copies.
 
 Key expressions follow Zenoh's rules for the two wildcards copath uses: ``*`` is one
-chunk, ``**`` is any number of chunks (docs/performance.md, "One lockstep protocol").
+chunk, ``**`` is any number of chunks (docs/reference/performance.md, "One lockstep protocol").
 
 Receiver validation is the same on both: a Zenoh subscriber decodes with
 :func:`copath.wire.messages.unpack` and checks :func:`copath.wire.trust.check_origin`; a
@@ -23,7 +23,7 @@ unchecked by the sender; the others are built by copath's own simulator and runt
 same process (the runtime checks a controller's command itself), and a stranger cannot
 publish on an in-memory bus (checking them too cost 6 % of an E5.4 run). A
 refused record is counted in each subscriber link's ``reject_log`` and handed to the
-subscription's ``on_reject(key, error)``, never to its callback (docs/faults.md, "Rejected
+subscription's ``on_reject(key, error)``, never to its callback (docs/reference/faults.md, "Rejected
 messages and the lockstep barrier").
 """
 

@@ -9,9 +9,9 @@ queue, so no single message can block a queue, crash a controller or end a run.
 
 Without secure mode nothing on the bus authenticates a publisher: a forgery that is
 well-formed and carries the right sender name still passes these checks. Secure mode
-(docs/security.md) closes that gap with per-run credentials and access control, so only
+(docs/reference/security.md) closes that gap with per-run credentials and access control, so only
 the simulator can publish under ``sim/`` and observations, and each robot only under its
-own keys. Both layers are described in docs/faults.md.
+own keys. Both layers are described in docs/reference/faults.md.
 
 :class:`RejectLog` counts what a process rejected, by reason, and hands out one
 ``messages_rejected`` event per interval (rate-limited: a flood of garbage becomes one

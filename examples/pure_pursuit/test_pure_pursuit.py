@@ -13,8 +13,8 @@ import sys
 
 import pytest
 
-from orchestrator.inprocess import run_scenario
-from orchestrator.validate import validate_file
+from orchestrator.run.inprocess import run_scenario
+from orchestrator.run.validate import validate_file
 
 HERE = pathlib.Path(__file__).resolve().parent
 

@@ -1,4 +1,4 @@
-"""Measure zero-on-exit: how soon after Ctrl-C every robot receives a zero Twist (docs/ros2.md).
+"""Measure zero-on-exit: how soon after Ctrl-C every robot receives a zero Twist (docs/reference/ros2.md).
 
 Starts the example robots (recording every Twist they receive) and ``copath run`` of a
 scenario over them, interrupts the run once every robot moves, and prints per robot the

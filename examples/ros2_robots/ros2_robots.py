@@ -1,4 +1,4 @@
-"""Simulated ROS 2 robots for people who have none (docs/ros2.md, "Robots without robots").
+"""Simulated ROS 2 robots for people who have none (docs/reference/ros2.md, "Robots without robots").
 
 One process, one or more robots of a scenario, each behaving like a ROS 2 driver:
 it takes geometry_msgs/Twist on ``/<robot>/cmd_vel`` and publishes its pose on
@@ -16,7 +16,7 @@ or, for a robot whose ``[world.robots.NAME] pose_type = "pose_stamped"``, on
 - odometry starts at zero where the robot starts (the scenario's start pose), as wheel
   odometry does; the scenario's default ``origin = "start"`` maps it back.
 
-Usage (two terminals; docs/ros2.md)::
+Usage (two terminals; docs/reference/ros2.md)::
 
     python examples/ros2_robots/ros2_robots.py e5.5
     copath run e5.5 --set world.backend=ros2 --clock realtime

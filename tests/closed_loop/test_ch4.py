@@ -1,6 +1,6 @@
 """Chapter 4 experiments in closed loop (in-process lockstep runner, no noise).
 
-Each test runs a scenario file from ``configs/`` through ``orchestrator.inprocess``
+Each test runs a scenario file from ``configs/`` through ``orchestrator.run.inprocess``
 (the simulator integrates the commands with the robot models, ranges come from
 ``sim/geometry.py``) and asserts the behaviour the dissertation reports, with explicit
 tolerances. JIT compilation is switched off here: it changes solve times, not results.
@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from copath.scenario import parse_scenario
-from orchestrator.inprocess import run_scenario
+from orchestrator.run.inprocess import run_scenario
 from tests.conftest import config
 
 NO_JIT = {"jit": False}

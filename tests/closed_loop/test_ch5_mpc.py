@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from copath.scenario import load_scenario, parse_scenario
-from orchestrator.inprocess import run_scenario
+from orchestrator.run.inprocess import run_scenario
 from tests.conftest import config
 
 FAULTS = {"delay_ms": 100, "loss": 0.2}
@@ -194,7 +194,7 @@ def _crossing(avoidance: bool, safety: bool = False):
     raw["robots"][1]["pose"] = [-2.0, 0.2, 0.0]
     raw["robots"][2]["pose"] = [-1.4, 0.2, 3.14]
     raw["robots"][0]["controller"]["avoidance"] = avoidance
-    raw["safety"] = {**raw.get("safety", {}), "enabled": safety}  # the scenario's filter (docs/safety.md)
+    raw["safety"] = {**raw.get("safety", {}), "enabled": safety}  # the scenario's filter (docs/reference/safety.md)
     return run_scenario(parse_scenario(raw)).metrics
 
 

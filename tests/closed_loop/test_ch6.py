@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from copath.scenario import load_scenario
-from orchestrator.inprocess import run_scenario
+from orchestrator.run.inprocess import run_scenario
 from tests.conftest import CONFIGS, config, is_connected
 
 FAULTS = {"delay_ms": 100, "loss": 0.1}
@@ -162,7 +162,7 @@ def _switching_run(network=None, **changes):
             raw["controller"]["switch_at"] = value[0]
             for r, slots in zip(raw["robots"], value[1]):
                 r["controller"]["slots"] = slots
-        elif key == "safety":  # the scenario's safety filter (docs/safety.md) on or off
+        elif key == "safety":  # the scenario's safety filter (docs/reference/safety.md) on or off
             raw["safety"] = {**raw.get("safety", {}), "enabled": value}
         else:
             raw["controller"][key] = value

@@ -8,7 +8,7 @@ import pytest
 from copath.occupancy import LastFormationWatch, first_occupied, occupied
 from copath.scenario import load_scenario
 from copath.wire.messages import Event, Telemetry
-from orchestrator.inprocess import run_scenario
+from orchestrator.run.inprocess import run_scenario
 from sim.node import TaskWatch
 from tests.conftest import config
 

@@ -3,7 +3,7 @@
 import pytest
 
 from copath.scenario import load_scenario
-from orchestrator.inprocess import run_scenario
+from orchestrator.run.inprocess import run_scenario
 from tests.conftest import config
 
 

@@ -1,4 +1,4 @@
-"""Detours round a blocked lane in closed loop (one process, ``run_scenario``; docs/detours.md):
+"""Detours round a blocked lane in closed loop (one process, ``run_scenario``; docs/reference/detours.md):
 the robots go round a box on their lane, keep their distance from it and from each other,
 make at least 90 % of the progress they make without it, and are back in coordination
 within 20 s after the last robot has passed."""
@@ -12,14 +12,14 @@ import pytest
 
 from copath.scenario import load_scenario
 from copath.slots import track_coordinate
-from copath.targets import grade
-from orchestrator.inprocess import run_scenario
-from orchestrator.metrics_truth import cross_track_series, truth_series
+from copath.grading import grade
+from orchestrator.run.inprocess import run_scenario
+from orchestrator.analysis.truth import cross_track_series, truth_series
 from tests.conftest import config
 
 
 def _progress(res, scen) -> dict[str, float]:
-    """How far each robot truly got along its path [m] (M1 of docs/metrics.md)."""
+    """How far each robot truly got along its path [m] (M1 of docs/reference/metrics.md)."""
     ser = truth_series(res.trace, scen)
     if ser is None:  # one robot: no team
         S = {r.name: track_coordinate(scen.paths[r.path], res.trace.robots[r.name].pose[:, :2]) for r in scen.robots}

@@ -1,5 +1,5 @@
 """The fault envelope of the built-in consensus families, on small seeded grids in-process
-(docs/envelope.md): the Sec. 5.5 law with the delay-robust coupling (E5.5, E5.4) and the
+(docs/reference/envelope.md): the Sec. 5.5 law with the delay-robust coupling (E5.5, E5.4) and the
 Chapter 6 agreement and task sequencing (E6.5) under delay and loss."""
 
 from __future__ import annotations
@@ -7,12 +7,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from orchestrator import api, envelope
-from orchestrator.metrics_truth import truth_series
+from orchestrator import api
+from orchestrator.studies import envelope
+from orchestrator.analysis.truth import truth_series
 
 # The Sec. 5.5 law as it was before the delay-robust coupling: rate-only prediction, full gains.
 PLAIN = {"controller.predict_acceleration": False, "controller.age_nominal_s": 1000.0}
-NO_FILTER = ["safety.enabled=false"]  # the controller's own envelope (docs/envelope.md: the filter's)
+NO_FILTER = ["safety.enabled=false"]  # the controller's own envelope (docs/reference/envelope.md: the filter's)
 
 pytestmark = pytest.mark.faults  # the fault grid: the faults tier (README "Test tiers")
 
@@ -72,7 +73,7 @@ def test_e65_completes_every_formation_within_60_s_at_300_ms_and_30_percent_loss
 @pytest.mark.slow
 def test_e65_completes_every_formation_within_120_s_at_500_ms_and_half_the_messages_lost(tmp_path):
     # the controller's own envelope: with the bundled filter the stale neighbour discs keep
-    # the robots off their targets at this cell (docs/envelope.md)
+    # the robots off their targets at this cell (docs/reference/envelope.md)
     cells = _grid(tmp_path, "e6.5-roles-six-robots-x", [(500, 0.5)], seeds=(1, 2),
                   fixed=["run.duration_s=120", *NO_FILTER])
     assert cells[(500.0, 0.5)].worst == 3

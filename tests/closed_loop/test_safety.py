@@ -1,6 +1,6 @@
 """The safety filter in closed loop (one process, ``run_scenario``): robots that collide
 without it are kept apart with it, with every controller family's command left unchanged
-when nobody is close (docs/safety.md)."""
+when nobody is close (docs/reference/safety.md)."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ import pytest
 from copath.control import Outgoing, StepResult
 from copath.scenario import load_scenario, parse_scenario
 from copath.wire.messages import Stats
-from orchestrator.inprocess import run_scenario
+from orchestrator.run.inprocess import run_scenario
 from tests.conftest import config
 
 FAULTS = {"delay_ms": 100.0, "loss": 0.2}
@@ -43,7 +43,7 @@ def test_five_robot_dmpc_collides_without_the_filter_and_not_with_it():
     assert on["fleet"]["coordination_error_max_m"] <= off["fleet"]["coordination_error_max_m"] + 0.02
     for r in on["robots"].values():
         assert r["limit_violations"] == 0  # the filtered command respects the wheel limits
-        assert r["safety_ms_p50"] is not None  # timed: its speed is benchmarked (orchestrator/bench_safety.py)
+        assert r["safety_ms_p50"] is not None  # timed: its speed is benchmarked (orchestrator/studies/bench/safety.py)
 
 
 @pytest.mark.slow
@@ -75,9 +75,9 @@ def test_twelve_unicycles_swap_places_across_a_circle_without_colliding(network)
 def test_circle_swap_without_the_deadlock_rule_is_safe_and_stall_detours_unwind_most_of_the_ring():
     # the same filter with the right-hand rule off: safe. The robots stop round the centre, and
     # with detours turned on the runtime's stall rule (on where the filter's rule is off;
-    # docs/detours.md) takes over:
+    # docs/reference/detours.md) takes over:
     # every robot detours, 8 of the 12 get past the centre within 25 s; a symmetric jam of four
-    # stays (docs/detours.md, "What it cannot do")
+    # stays (docs/reference/detours.md, "What it cannot do")
     s = load_scenario(config("e5.6-circle-swap"))
     m = run_scenario(s.with_overrides(safety={"enabled": True, "deadlock_turn_rad": 0.0, "detours": True}), duration_s=25.0).metrics
     assert m["fleet"]["collisions"] == 0
@@ -165,7 +165,7 @@ def test_column_at_one_second_delay_and_half_lost_with_the_filter_on():
     # issue 14's goal with the bundled [safety] on: E5.5's robots declare acceleration limits
     # (enforced by the simulator), send their velocity and commit to a tube round the arc it
     # predicts, so the filter bounds a stale neighbour by that tube instead of inflating it by
-    # v_max tau; below 0.1 m with the braking-distance rows (docs/safety.md, "Committed plans")
+    # v_max tau; below 0.1 m with the braking-distance rows (docs/reference/safety.md, "Committed plans")
     s = load_scenario(config("e5.5-column"))
     assert s.safety.enabled and s.safety.braking and all(r.model.a_max is not None for r in s.robots)
     assert s.safety.commit_accel_mps2 is not None
@@ -205,7 +205,7 @@ def test_committed_plans_keep_robots_driving_head_on_apart_under_delay_and_loss(
     # each robot keeps within the tube round the arcs it published and keeps out of its
     # neighbours' tubes with their velocity known; robots driving straight at each other have
     # plans that meet, so they give up their promises (counted) to keep their centre rows, and
-    # none collides at 500 ms of delay and 30 % loss (docs/safety.md, "Committed plans")
+    # none collides at 500 ms of delay and 30 % loss (docs/reference/safety.md, "Committed plans")
     net = {"delay_ms": 500.0, "loss": 0.3}
     off = _head_on(model, "build_talking", {"enabled": False}, n=n, network=net)
     assert off["fleet"]["collisions"] >= 1
@@ -260,7 +260,7 @@ def test_a_lost_robot_held_still_is_a_static_disc_passed_and_not_forgotten():
     liveliness goes: the simulator holds it where it is then (it drove on with its last command
     for one period). Robot a drives at it along x at 0.5 m/s, 0.1 m off its line, from 1 s to
     9 s, long after ``max_age_s``: the filter keeps b as a static disc around where it may have
-    stopped (SafetyGuard._held; docs/safety.md, "A lost robot"), so a goes round it without
+    stopped (SafetyGuard._held; docs/reference/safety.md, "A lost robot"), so a goes round it without
     touching it, and comes close. Before, b was forgotten after max_age_s and a drove into it."""
     from copath.models import OmniModel, integrate_body_velocity
     from copath.safety import SafetyConfig, SafetyGuard

@@ -1,6 +1,6 @@
 """Realistic sensing in closed loop, one scenario per chapter (E4.2, E5.5, E6.5): with the
 ``realistic`` profile (noisy, delayed fixes with outliers, a biased compass, slipping
-odometry; docs/sensing.md) each robot's EKF keeps the dissertation's real-robot error
+odometry; docs/reference/sensing.md) each robot's EKF keeps the dissertation's real-robot error
 levels, and the same noise without the estimator does measurably worse."""
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ import pytest
 
 from copath.scenario import load_scenario
 from copath.wire.messages import Estimate, Obs, PeerEnvelope
-from orchestrator.inprocess import run_scenario
+from orchestrator.run.inprocess import run_scenario
 from tests.conftest import config
 
 

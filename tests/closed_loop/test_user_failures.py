@@ -19,13 +19,13 @@ import math
 import pytest
 
 from copath.scenario import parse_scenario
-from copath.targets import grade
+from copath.grading import grade
 from copath.wire.keys import Keys
 from copath.wire.messages import Event, Stats
 from orchestrator import api
 from orchestrator.cli import main as copath
-from orchestrator.inprocess import run_scenario
-from orchestrator.mcaplog import read_log
+from orchestrator.run.inprocess import run_scenario
+from orchestrator.log.mcap import read_log
 from tests.faults.test_controller_errors import FAIL_AT, _assert_one_failure_line, _closing, _failing_steps, _nan_heard, _write
 
 def test_step_exception_in_one_process_one_line_counted_traceback_once_check_fails(tmp_path, capsys):

@@ -1,6 +1,6 @@
 """Two "hosts" on one machine: Linux network namespaces joined by a veth pair, each with
-its own Zenoh router (docs/faults.md, "Across hosts"). Shared by the netns and router
-tests and by ``benchmarks/fault_table.py``.
+its own Zenoh router (docs/reference/faults.md, "Across hosts"). Shared by the netns and router
+tests and by ``orchestrator/studies/bench/fault_table.py``.
 
 Host A is 10.77.0.1, host B 10.77.0.2 on their own /24. Setting them up needs root and
 ``ip netns``; an impairment of the link needs ``tc`` (rate limit) or ``iptables`` (random

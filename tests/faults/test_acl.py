@@ -18,8 +18,8 @@ from copath.wire.acl import AccessDenied, AccessPolicy, grants
 from copath.wire.keys import Keys
 from copath.wire.link import MemoryBus
 from copath.wire.session import SessionConfig, ZenohLink, free_port, loopback_endpoint
-from orchestrator.inprocess import run_scenario
-from orchestrator.security import client_extra, make_credentials, router_extra
+from orchestrator.run.inprocess import run_scenario
+from orchestrator.run.security import client_extra, make_credentials, router_extra
 from tests.conftest import CONFIGS
 
 KEYS = Keys("acl")
@@ -82,7 +82,7 @@ def test_every_bundled_scenario_runs_within_its_grants(path: pathlib.Path):
 @pytest.mark.timeout(60)
 @pytest.mark.parametrize("overhear", [False, True])
 def test_the_router_refuses_and_grants_what_the_policy_does(tmp_path, overhear):
-    """The run's router (orchestrator/security.py) enforces the same grants: a robot's
+    """The run's router (orchestrator/run/security.py) enforces the same grants: a robot's
     ``peer/*/to/*`` subscription hears other robots' direct messages only when overhearing
     is granted, and its own ``peer/*/to/r2`` one hears its messages either way."""
     robots = ["r1", "r2", "r3"]

@@ -1,4 +1,4 @@
-"""Chaos soak (issue 24; docs/faults.md, "Chaos soak"): a fleet killed again and again under
+"""Chaos soak (issue 24; docs/reference/faults.md, "Chaos soak"): a fleet killed again and again under
 ``run.on_robot_failure = "restart"`` comes back every time, and its log says so.
 
 The slow test is the issue's goal on E5.5 realtime over Zenoh: 2 minutes, 6 SIGKILLs on a
@@ -12,7 +12,7 @@ import signal
 
 import pytest
 
-from benchmarks.chaos import _cmdline, prepare, soak_fleet, soak_inprocess
+from orchestrator.studies.bench.chaos import _cmdline, prepare, soak_fleet, soak_inprocess
 
 pytestmark = [pytest.mark.faults]
 

@@ -20,8 +20,8 @@ import pytest
 from copath.wire.keys import Keys
 from copath.wire.messages import Stats
 from orchestrator import api
-from orchestrator.inprocess import run_scenario
-from orchestrator.mcaplog import read_log
+from orchestrator.run.inprocess import run_scenario
+from orchestrator.log.mcap import read_log
 from tests.faults.user_controller import scenario_text
 
 FAIL_AT = 1.0

@@ -6,7 +6,7 @@ import msgpack
 import pytest
 
 from orchestrator.cli import main as copath
-from orchestrator.mcaplog import iter_raw
+from orchestrator.log.mcap import iter_raw
 from tests.conftest import config
 
 pytestmark = [pytest.mark.fleet, pytest.mark.timeout(300)]

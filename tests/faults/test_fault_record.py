@@ -11,9 +11,9 @@ import pytest
 
 from copath.scenario import load_scenario
 from copath.wire.faults import windows_between
-from orchestrator.inprocess import run_scenario
-from orchestrator.mcaplog import read_log, write_records
-from orchestrator.metrics_truth import truth_series
+from orchestrator.run.inprocess import run_scenario
+from orchestrator.log.mcap import read_log, write_records
+from orchestrator.analysis.truth import truth_series
 from tests.conftest import config
 
 
@@ -60,7 +60,7 @@ def test_a_silent_radio_neither_sends_nor_receives_and_is_on_the_timeline(tmp_pa
     path = tmp_path / "silent.toml"
     path.write_text(toml + '\n[network]\nsilence = [{robot = "r2", start_s = 5.0, end_s = 10.0}]\n')
     scen = load_scenario(path)
-    # 5 s of silence is a lost robot (docs/faults.md): go on without it, as the test measures recovery
+    # 5 s of silence is a lost robot (docs/reference/faults.md): go on without it, as the test measures recovery
     scen = dataclasses.replace(scen, run=dataclasses.replace(scen.run, on_robot_failure="continue"))
     res = run_scenario(scen, duration_s=45.0)
     log = read_log(write_records(tmp_path / "run.mcap", res.records, scen, "silence"))
@@ -75,7 +75,7 @@ def test_a_silent_radio_neither_sends_nor_receives_and_is_on_the_timeline(tmp_pa
     assert all(set(e.detail["from"]) == {"r2"} for e in silenced if e.source != "r2")
     assert res.metrics["fleet"]["messages_dropped_by_faults"] == sum(e.detail["silenced"] for e in silenced)
     # r2, cut off, held still from 6.1 s to the silence's end (run.cut_off = "hold",
-    # docs/faults.md "Gone quiet"), fell behind by about a metre, and the team closes up
+    # docs/reference/faults.md "Gone quiet"), fell behind by about a metre, and the team closes up
     # again: 0.07 m at 30 s, under 0.05 m from 35 s (with "drive" r2 drives on blind: 0.009 m)
     assert [(e.t, e.what) for e in events if e.source == "r2" and e.what in ("cut_off", "reconnected")] == \
         [(pytest.approx(6.1), "cut_off"), (pytest.approx(10.1, abs=0.15), "reconnected")]

@@ -12,8 +12,8 @@ import pytest
 from mcap.writer import Writer
 
 from orchestrator.cli import main as copath
-from orchestrator.mcaplog import read_log
-from orchestrator.replay import log_info
+from orchestrator.log.mcap import read_log
+from orchestrator.log.replay import log_info
 from tests.conftest import config
 from tests.faults.conftest import E55_LOG_RUN_ID
 from tests.integration.conftest import child_pids

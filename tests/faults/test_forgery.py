@@ -14,7 +14,7 @@ import pytest
 from copath.wire.keys import Keys
 from copath.wire.messages import End, PeerEnvelope
 from copath.wire.session import SessionConfig, ZenohLink, free_port, loopback_endpoint
-from orchestrator.mcaplog import read_log
+from orchestrator.log.mcap import read_log
 from tests.conftest import config
 
 pytestmark = [pytest.mark.fleet, pytest.mark.timeout(240)]

@@ -1,5 +1,5 @@
 """A leader-following team (Sec. 5.3, E5.1) whose leader is lost elects a new one by a rule
-every follower applies locally (docs/faults.md, "A new leader"); a returning leader follows
+every follower applies locally (docs/reference/faults.md, "A new leader"); a returning leader follows
 the leader of the higher term instead of taking the lead back."""
 
 from __future__ import annotations
@@ -14,12 +14,12 @@ from copath.control import Observation, PeerMessage, RobotContext
 from copath.scenario import load_scenario
 from copath.wire.keys import Keys
 from copath.wire.messages import PeerEnvelope
-from agent.controllers.leader_following import FollowerConfig, follower_reference
+from agent.controllers.leader_following.controller import FollowerConfig, follower_reference
 from copath.config import from_table
 from copath.slots import wrap_near
-from orchestrator.inprocess import run_scenario
-from orchestrator.metrics import compute_metrics
-from orchestrator.metrics_truth import truth_series
+from orchestrator.run.inprocess import run_scenario
+from orchestrator.analysis.metrics import compute_metrics
+from orchestrator.analysis.truth import truth_series
 from tests.conftest import config
 
 T_KILL = 12.0
@@ -186,7 +186,7 @@ def test_a_leader_restarted_far_from_c_drives_back_with_its_nmpc_solving(t_back)
     """Restarted 1.6 to 3.3 m from C, outside the terminal region of the follower's NMPC
     (5.8), (4.11): the terminal bound contracts from where it is, so the solves succeed
     (before, the SQP cycled and the robot stood still: 61, 2, 281 and 210 failed solves
-    at these restart times, stuck for good at 25 and 29 s; docs/faults.md). Its slot
+    at these restart times, stuck for good at 25 and 29 s; docs/reference/faults.md). Its slot
     moves at C's speed, at most u_R; the robot closes on it at up to the safety filter's
     speed cap less u_R, after 0.83 s of acceleration to that cap (accel_max_mps2) and
     before the last approach under the terminal gains (2 /s: 1.2 s from 0.5 m to the
@@ -265,7 +265,7 @@ def test_a_restarted_leader_follows_the_new_one_in_a_fleet(tmp_path, procs):
     import signal
     import time
 
-    from orchestrator.mcaplog import read_log
+    from orchestrator.log.mcap import read_log
     from tests.integration.conftest import child_pids, cmdline
 
     p = procs.start(["-m", "orchestrator", "run", str(config("e5.1-")), "--out", str(tmp_path), "--run-id", "elect",
@@ -324,7 +324,7 @@ def test_the_team_passes_its_stopped_leader_without_touching_it():
     the safety filter keeps every robot outside the footprints (0.4 m between centres).
     With E5.1's margin at 0.0 it held them at the footprint and they touched (0.3999 m); the
     filter now keeps the held leader as a static disc round where it may have stopped
-    (docs/safety.md, "A lost robot"), which they pass at 0.48 m."""
+    (docs/reference/safety.md, "A lost robot"), which they pass at 0.48 m."""
     scen, keys, records, trace = run_killed(_scenario(sensors=True), duration_s=45.0)
     res = compute_metrics(trace, scen, run_id="election", clock="lockstep", wall_time_s=0.0,
                           messages_published=None, messages_recorded=None)
@@ -341,9 +341,9 @@ def test_the_team_passes_its_stopped_leader_without_touching_it():
 @pytest.mark.parametrize("sensors", [True, False])
 def test_the_column_passes_a_leader_lost_during_the_column_change_and_held_still(sensors):
     """E5.1, leader killed at 19.8 s during the triangle -> column change and restarted at
-    30.2 s (docs/faults.md): the column (q = 0) drives over the spot where the leader is
+    30.2 s (docs/reference/faults.md): the column (q = 0) drives over the spot where the leader is
     held still. The safety filter keeps it as a static disc round where it may have stopped,
-    not forgotten after safety.max_age_s (docs/safety.md, "A lost robot"): no contact, with
+    not forgotten after safety.max_age_s (docs/reference/safety.md, "A lost robot"): no contact, with
     or without the range sensors. Before, only the range readings stood for it after 2 s and
     the followers came within 0.378 m of it, squeezed between it and each other (5 contacts
     with the sensors; without them they drove into it, 0.02 m)."""

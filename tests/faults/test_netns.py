@@ -11,7 +11,7 @@ Impairments: iptables dropping 30 % of the packets that reach host A over the li
 A router-to-router link that loses packets stalls while TCP resends them (exponential
 backoff), so a 1 s transport lease can expire on it and the robots behind it look lost:
 host B's router announces a 10 s lease, and host A's side sees the drops
-(docs/faults.md, "Across hosts")."""
+(docs/reference/faults.md, "Across hosts")."""
 
 from __future__ import annotations
 
@@ -19,7 +19,7 @@ import json
 
 import pytest
 
-from orchestrator.mcaplog import read_log
+from orchestrator.log.mcap import read_log
 from tests.conftest import config
 
 from .hosts import ADDR_A, ADDR_B, endpoint, popen, start_router, stop_all, two_hosts, wait_for_file, why_not
@@ -57,7 +57,7 @@ def assert_every_robot_and_no_loss(tmp_path, run_id: str, ticks: int) -> dict:
     # unless the lossy link was reset: a resent segment can stall it past the lease, r2's
     # session is reset and reconnects (it logs the simulator's token going and coming back
     # within the grace), and what was in flight on it is lost, at most a tick of r2's
-    # records per reset (docs/faults.md, "Across hosts"). Seen in about 1 run in 5.
+    # records per reset (docs/reference/faults.md, "Across hosts"). Seen in about 1 run in 5.
     resets = (tmp_path / "logs" / "r2.log").read_text().count("the simulator's liveliness token is back")
     lost = m["fleet"]["messages_published"] - m["fleet"]["messages_recorded"]
     assert lost == 0 if resets == 0 else 0 <= lost <= 6 * resets, (resets, m["fleet"])
@@ -74,7 +74,7 @@ def assert_every_robot_and_no_loss(tmp_path, run_id: str, ticks: int) -> dict:
 
 
 # "drop" failed 2 of 5 runs on this tree (2026-12-01, load 0.5-3; 1 in 5 the session before,
-# with r2's session reset on the lossy link); cause not yet found (docs/faults.md, "Across
+# with r2's session reset on the lossy link); cause not yet found (docs/reference/faults.md, "Across
 # hosts"), so it waits in the slow tier instead of failing CI one run in two or three
 @pytest.mark.parametrize("impairment", [pytest.param("drop", marks=pytest.mark.slow),
                                         pytest.param("tbf", marks=pytest.mark.slow)])

@@ -9,8 +9,8 @@ import pytest
 
 from copath.wire.keys import Keys
 from copath.wire.session import SessionConfig, ZenohLink, free_port, loopback_endpoint
-from orchestrator.mcaplog import Recorder, iter_raw
-from orchestrator.replay import parse_wait_for
+from orchestrator.log.mcap import Recorder, iter_raw
+from orchestrator.log.replay import parse_wait_for
 
 pytestmark = [pytest.mark.fleet, pytest.mark.timeout(240)]
 
@@ -47,7 +47,7 @@ def test_a_replay_into_a_fresh_recorder_delivers_every_message_in_order(tmp_path
 
 
 def test_pacing_by_simulated_time_replays_a_lockstep_log_in_real_time(tmp_path, lockstep_log):
-    from orchestrator.replay import replay
+    from orchestrator.log.replay import replay
 
     t0 = time.monotonic()
     res = replay(lockstep_log, speed=16.0, pace="sim", start_delay_s=0.0)

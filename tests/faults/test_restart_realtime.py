@@ -1,5 +1,5 @@
 """A robot killed mid-run under ``run.on_robot_failure = "restart"`` commands again, under
-both clocks, over Zenoh and in one process (issue 24; docs/faults.md, "Restart").
+both clocks, over Zenoh and in one process (issue 24; docs/reference/faults.md, "Restart").
 
 A restarted agent missed the simulator's start record; the simulator announces it again when
 the robot's token appears, so the new process synchronises its clock, finds its neighbours
@@ -19,8 +19,8 @@ import time
 
 import pytest
 
-from benchmarks.chaos import robot_pid
-from orchestrator.mcaplog import read_log
+from orchestrator.studies.bench.chaos import robot_pid
+from orchestrator.log.mcap import read_log
 from tests.conftest import config
 
 pytestmark = [pytest.mark.faults, pytest.mark.timeout(400)]
@@ -88,7 +88,7 @@ def test_a_killed_robot_restarts_and_commands_again_over_zenoh(tmp_path, procs, 
 
 def test_a_killed_robot_restarts_and_commands_again_in_one_process():
     from copath.scenario import load_scenario
-    from orchestrator.inprocess import run_scenario
+    from orchestrator.run.inprocess import run_scenario
 
     scen = load_scenario(config("e5.5-"))
     scen = dataclasses.replace(scen, run=dataclasses.replace(scen.run, on_robot_failure="restart"))
@@ -111,7 +111,7 @@ def test_a_restarted_robot_past_the_rejoin_bound_fails_the_run_loudly(tmp_path, 
     """A bound too short for any restart: the robot is lost, with an event, a terminal line,
     and ``ok: false`` naming it."""
     from copath.scenario import load_scenario
-    from orchestrator.fleet import RunOptions, run_fleet
+    from orchestrator.run.fleet import RunOptions, run_fleet
 
     scen = load_scenario(config("e5.5-"))
     scen = scen.with_overrides(run={"on_robot_failure": "restart", "clock": "realtime", "duration_s": 20.0,

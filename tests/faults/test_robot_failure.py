@@ -12,7 +12,7 @@ import time
 
 import pytest
 
-from orchestrator.mcaplog import read_log
+from orchestrator.log.mcap import read_log
 from tests.conftest import config
 from tests.integration.conftest import child_pids, cmdline
 
@@ -69,7 +69,7 @@ def test_continue_goes_on_without_the_lost_robot(tmp_path, procs, sig):
     assert m["robots"]["r3"]["outage_s"] > 5 and m["robots"]["r3"]["restarts"] == 0
     assert m["robots"]["r1"]["outage_s"] == 0
     # the others go on along their paths and go round the stopped r3, which their safety
-    # filters keep as a static disc (docs/safety.md, "A lost robot"): off the path only to
+    # filters keep as a static disc (docs/reference/safety.md, "A lost robot"): off the path only to
     # pass it (0.38-0.64 m measured, with the kill time; before, they kept within 0.2 m by
     # driving through it). A bound of a metre: around the disc, not lost
     assert m["fleet"]["collisions"] == 0
@@ -112,7 +112,7 @@ def test_in_process_kills_and_restarts_follow_the_policy():
 
     from copath.config import ConfigError
     from copath.scenario import load_scenario
-    from orchestrator.inprocess import run_scenario
+    from orchestrator.run.inprocess import run_scenario
 
     scen = load_scenario(config("e5.5-"))
     # the liveliness grace is wall time, which an in-process run hardly spends: none here

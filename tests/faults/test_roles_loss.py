@@ -1,4 +1,4 @@
-"""Role assignment without a lost robot (Ch. 6, Algorithm 6.2; docs/ambiguities.md, A38).
+"""Role assignment without a lost robot (Ch. 6, Algorithm 6.2; docs/reference/ambiguities.md, A38).
 
 E6.3 (16 robots, 12 positions) with r5's radio silent for the rest of the run and
 ``run.on_robot_failure = "continue"``: the team leaves r5 out of its assignment problem,
@@ -19,7 +19,7 @@ from agent.controllers.roles.phases import ASSIGNED, EN_ROUTE, Assignment, Peer,
 from copath.control import Observation, PeerMessage, RobotContext
 from copath.models import UnicycleModel
 from orchestrator import api
-from orchestrator.inprocess import run_scenario
+from orchestrator.run.inprocess import run_scenario
 
 SCENARIO = "e6.3-roles-circle-surplus-robots"
 

@@ -16,7 +16,7 @@ import time
 import pytest
 
 from copath.scenario import load_scenario
-from orchestrator.mcaplog import read_log
+from orchestrator.log.mcap import read_log
 from tests.conftest import config
 
 from .hosts import ADDR_A, ADDR_B, endpoint, popen, start_router, stop_all, two_hosts, wait_for_file, why_not

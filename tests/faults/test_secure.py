@@ -13,8 +13,8 @@ import zenoh
 from copath.wire.keys import Keys
 from copath.wire.messages import Command, End, Obs, PeerEnvelope
 from copath.wire.session import SessionConfig, ZenohLink, free_port, loopback_endpoint
-from orchestrator.mcaplog import read_log
-from orchestrator.security import acl_config
+from orchestrator.log.mcap import read_log
+from orchestrator.run.security import acl_config
 from tests.conftest import config
 
 pytestmark = [pytest.mark.fleet, pytest.mark.timeout(300)]

@@ -1,7 +1,7 @@
 """A radio silence (``network.silence``) longer than the liveliness lease is a lost robot:
 its neighbours put it in ``Observation.lost`` from their own inboxes (``peer_silent``) and
 take it back when they hear it again (``peer_heard``); the simulator, which owns the fault
-model, applies ``run.on_robot_failure`` (docs/faults.md, "When a robot dies, freezes or
+model, applies ``run.on_robot_failure`` (docs/reference/faults.md, "When a robot dies, freezes or
 goes quiet")."""
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ import pytest
 from copath.scenario import Silence, load_scenario
 from copath.wire.faults import SILENT_AFTER_S, silence_outages
 from copath.wire.session import SessionConfig
-from orchestrator.inprocess import run_scenario
+from orchestrator.run.inprocess import run_scenario
 from tests.conftest import config
 
 
@@ -103,14 +103,14 @@ def test_continue_keeps_the_rest_in_consensus_and_the_robot_rejoins_it(continued
     x1, x2 = (np.interp(t, *xi[n]) for n in ("r1", "r2"))
     assert np.max(np.abs(x1 - x2)) < 0.05
     # r3, cut off (it has lost r2, the only robot it hears), holds still from then until it
-    # hears r2 again (docs/faults.md, "Gone quiet"); before that rule it drove on blind and
+    # hears r2 again (docs/reference/faults.md, "Gone quiet"); before that rule it drove on blind and
     # stayed within 0.05 m of consensus throughout; now it is 1.3 m of path behind at 15 s
     cut = [(e.what, round(e.t, 2)) for e in _events(continued, "cut_off", "reconnected") if e.source == "r3"]
     assert cut == [("cut_off", 6.1), ("reconnected", 15.1)]
     r3 = tr.robots["r3"]
     still = (r3.t >= 6.6) & (r3.t <= 15.0)  # after braking
     assert np.ptp(r3.pose[still, 0]) < 1e-3 and np.ptp(r3.pose[still, 1]) < 1e-3
-    # r3 is not graded while it is lost, nor until it is back in its slot (docs/metrics.md, M3):
+    # r3 is not graded while it is lost, nor until it is back in its slot (docs/reference/metrics.md, M3):
     # the figure is the live robots' (0.136 m measured; 0.3-1.0 m when r3 was graded throughout)
     assert continued.metrics["fleet"]["coordination_error_max_m"] < 0.2
     # heard again, it catches up: the three are back in consensus by 40 s (0.05 m measured
@@ -153,7 +153,7 @@ def test_silence_detection_is_the_same_in_every_lockstep_run():
 def test_a_silent_follower_holds_still_and_nobody_hits_it():
     """E5.1, f1's radio quiet from 8 s to the end: f1, cut off, holds still (it drove
     through the leader before: 2 collisions, 0.006 m); the others' safety filters keep it as
-    a static disc round where it may have stopped (docs/safety.md, "A lost robot")."""
+    a static disc round where it may have stopped (docs/reference/safety.md, "A lost robot")."""
     res = run_scenario(_silent("e5.1-", "f1", 8.0, 46.0, "continue"), duration_s=45.0)
     cut = [(e.source, round(e.t, 2)) for e in _events(res, "cut_off", "reconnected")]
     assert cut == [("f1", 9.1)]

@@ -1,11 +1,11 @@
-"""A small user controller for the controller-failure tests (docs/controllers.md, the
+"""A small user controller for the controller-failure tests (docs/reference/controllers.md, the
 plug-in contract): pure pursuit on the robot's own path with a speed correction from the
 neighbours' progress, as ``examples/pure_pursuit``, plus two ways to misbehave on purpose.
 
 - ``fail_after_s``: ``step()`` raises ``ZeroDivisionError`` from that controller time on
   (negative: never);
 - ``nan_after_s``: from that time on every message carries a NaN in its payload, which
-  every receiver must reject (docs/faults.md, "Rejected messages").
+  every receiver must reject (docs/reference/faults.md, "Rejected messages").
 
 Scenarios name it by import path, ``tests.faults.user_controller:build``.
 """

@@ -1,5 +1,5 @@
 """Every ``copath bench`` subcommand runs briefly and prints its JSON document (no thresholds:
-the figures themselves are measured by hand, benchmarks/README.md)."""
+the figures themselves are measured by hand, orchestrator/studies/bench/README.md)."""
 
 from __future__ import annotations
 

@@ -11,8 +11,8 @@ import pytest
 from copath.scenario import load_scenario
 from copath.wire.messages import Event
 from orchestrator.cli import main as copath
-from orchestrator.inprocess import run_scenario
-from orchestrator.mcaplog import read_log
+from orchestrator.run.inprocess import run_scenario
+from orchestrator.log.mcap import read_log
 from tests.conftest import config
 
 pytestmark = [pytest.mark.fleet, pytest.mark.timeout(300)]

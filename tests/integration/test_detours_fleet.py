@@ -1,4 +1,4 @@
-"""Detours over Zenoh (docs/detours.md): the box-on-lane column as robot processes in lockstep
+"""Detours over Zenoh (docs/reference/detours.md): the box-on-lane column as robot processes in lockstep
 goes round the box as the in-process run does, and its log carries the detour events."""
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ import pytest
 
 from copath.scenario import load_scenario
 from orchestrator.cli import main as copath
-from orchestrator.inprocess import run_scenario
+from orchestrator.run.inprocess import run_scenario
 from tests.conftest import config
 
 pytestmark = [pytest.mark.fleet, pytest.mark.timeout(400)]

@@ -14,9 +14,9 @@ from copath.scenario import load_scenario
 from copath.wire.keys import Keys
 from copath.wire.session import SessionConfig, ZenohLink, free_port, loopback_endpoint
 from orchestrator.cli import main as copath
-from orchestrator.inprocess import run_scenario
-from orchestrator.mcaplog import read_log
-from orchestrator.replay import log_info
+from orchestrator.run.inprocess import run_scenario
+from orchestrator.log.mcap import read_log
+from orchestrator.log.replay import log_info
 from tests.conftest import config
 
 from .conftest import child_pids, cmdline

@@ -12,7 +12,7 @@ import time
 import pytest
 
 from orchestrator.api import load
-from orchestrator.fleet import RunOptions, run_fleet
+from orchestrator.run.fleet import RunOptions, run_fleet
 from tests.conftest import config
 
 from .conftest import child_pids, cmdline

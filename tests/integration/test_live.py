@@ -15,11 +15,11 @@ from websockets.sync.client import connect
 
 from copath.scenario import load_scenario
 from copath.wire.session import free_port
-from orchestrator.fleet import RunOptions, run_fleet
-from orchestrator.inprocess import run_scenario
-from orchestrator.live import LiveViz, serve_log
-from orchestrator.mcaplog import write_records
-from orchestrator.viz import TOPICS
+from orchestrator.run.fleet import RunOptions, run_fleet
+from orchestrator.run.inprocess import run_scenario
+from orchestrator.view.live import LiveViz, serve_log
+from orchestrator.log.mcap import write_records
+from orchestrator.view.foxglove import TOPICS
 from tests.conftest import config
 
 pytestmark = [pytest.mark.fleet, pytest.mark.timeout(180)]

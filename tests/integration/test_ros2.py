@@ -1,4 +1,4 @@
-"""ROS 2 worlds (docs/ros2.md): copath runs driving simulated ROS 2 robots
+"""ROS 2 worlds (docs/reference/ros2.md): copath runs driving simulated ROS 2 robots
 (examples/ros2_robots) through the bridge, over Fast DDS and Zenoh.
 
 Each test has its own ROS_DOMAIN_ID and keeps discovery on this host, and stops every
@@ -18,7 +18,7 @@ import time
 import pytest
 
 from copath.ros2 import missing
-from orchestrator.mcaplog import read_log
+from orchestrator.log.mcap import read_log
 
 pytestmark = [pytest.mark.fleet, pytest.mark.skipif(missing() is not None, reason=str(missing()))]
 

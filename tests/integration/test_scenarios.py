@@ -8,8 +8,8 @@ import pytest
 
 from copath.scenario import load_scenario
 from orchestrator.cli import main as copath
-from orchestrator.inprocess import run_scenario
-from orchestrator.mcaplog import read_log
+from orchestrator.run.inprocess import run_scenario
+from orchestrator.log.mcap import read_log
 from tests.conftest import CONFIGS, config
 
 pytestmark = [pytest.mark.fleet, pytest.mark.timeout(400)]

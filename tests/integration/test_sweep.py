@@ -7,7 +7,7 @@ import csv
 import pytest
 
 from orchestrator.cli import main as copath
-from orchestrator.mcaplog import read_log
+from orchestrator.log.mcap import read_log
 
 pytestmark = pytest.mark.fleet
 

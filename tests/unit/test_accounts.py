@@ -1,4 +1,4 @@
-"""The recorder's accounts from the link's sequence numbers (docs/faults.md, "Accounts that
+"""The recorder's accounts from the link's sequence numbers (docs/reference/faults.md, "Accounts that
 survive a kill"): gaps are found, a late record closes its gap, a killed process is counted
 to its last record, a restarted one is a new incarnation."""
 
@@ -9,7 +9,7 @@ import json
 from copath.wire.keys import Keys
 from copath.wire.messages import Command, Stats
 from copath.wire.session import read_seq_attachment, seq_attachment
-from orchestrator.mcaplog import Recorder, read_metadata
+from orchestrator.log.mcap import Recorder, read_metadata
 
 
 def test_the_attachment_round_trips_and_foreign_ones_are_ignored():

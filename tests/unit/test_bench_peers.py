@@ -1,4 +1,4 @@
-"""``copath bench peers`` (orchestrator/bench_peers.py): IR-SIM's world file and the 16-robot
+"""``copath bench peers`` (orchestrator/studies/bench/peers.py): IR-SIM's world file and the 16-robot
 copath scenario it compares against; IR-SIM itself only where the ``peers`` extra is installed."""
 
 from __future__ import annotations
@@ -8,7 +8,7 @@ import math
 
 import pytest
 
-from orchestrator.bench_peers import STEPS, e54_sixteen, irsim_world, run_irsim
+from orchestrator.studies.bench.peers import STEPS, e54_sixteen, irsim_world, run_irsim
 
 
 def test_irsim_world_has_n_diff_drive_rvo_robots_and_the_step():

@@ -10,11 +10,12 @@ import json
 import pytest
 
 from copath.config import ConfigError
-from copath.targets import TARGETS, Target, grade, parse_targets
-from orchestrator import api, sweep
+from copath.grading import TARGETS, Target, grade, parse_targets
+from orchestrator import api
+from orchestrator.studies import sweep
 from orchestrator.cli import main as copath
-from orchestrator.metrics import METRIC_KEYS
-from orchestrator.progress import Progress
+from orchestrator.analysis.metrics import METRIC_KEYS
+from orchestrator.run.progress import Progress
 
 SHORT = ["--set", "run.duration_s=3", "--set", "run.settle_s=1", "-q"]
 
@@ -289,7 +290,7 @@ def test_controllers_lists_each_parameter_with_type_default_and_meaning(capsys):
 
 
 def test_animation_progress_is_plain_lines_when_not_a_terminal():
-    from orchestrator.plot import animation_bar
+    from orchestrator.view.plot import animation_bar
 
     class Tty(io.StringIO):
         def isatty(self):
@@ -305,7 +306,7 @@ def test_animation_progress_is_plain_lines_when_not_a_terminal():
 
 
 def test_faults_title_says_what_each_count_is():
-    from orchestrator.plot import faults_caption
+    from orchestrator.view.plot import faults_caption
 
     text = faults_caption(967, 964)
     assert "967 replayed from the log" in text and "964 counted by the receivers" in text
@@ -328,7 +329,7 @@ def test_sweep_plots_draw_the_scenarios_target(tmp_path, monkeypatch):
 
 
 def test_run_scenario_metrics_say_ok_like_api_run():
-    from orchestrator.inprocess import run_scenario
+    from orchestrator.run.inprocess import run_scenario
 
     s = api.load("e5.5", {"run.duration_s": 0.5, "run.settle_s": 0.0})
     res = run_scenario(s)

@@ -1,4 +1,4 @@
-"""The detour stage's geometry (copath/detour.py, docs/detours.md), without a controller: a
+"""The detour stage's geometry (copath/detour.py, docs/reference/detours.md), without a controller: a
 robot is moved along its lane as shifted by the stage, as a perfect controller would."""
 
 from __future__ import annotations

@@ -1,5 +1,5 @@
-"""``copath envelope`` (orchestrator/envelope.py) and the delay-robust coupling of the
-Sec. 5.5 law (agent/controllers/consensus.py: prediction over the message age, gains
+"""``copath envelope`` (orchestrator/studies/envelope.py) and the delay-robust coupling of the
+Sec. 5.5 law (agent/controllers/consensus/controller.py: prediction over the message age, gains
 scheduled on the age of information)."""
 
 from __future__ import annotations
@@ -9,11 +9,11 @@ import math
 
 import pytest
 
-from agent.controllers.consensus import age_weight, neighbour_states
+from agent.controllers.consensus.controller import age_weight, neighbour_states
 from copath.config import ConfigError
 from copath.control import PeerMessage
 from copath.control.inbox import Received
-from orchestrator import envelope, sweep
+from orchestrator.studies import envelope, sweep
 from orchestrator.cli import main as copath
 
 
@@ -112,7 +112,7 @@ def test_a_neighbour_is_predicted_exactly_under_constant_acceleration():
 
 def _pi_decay_steps(delay_steps: int, rates: bool, dt: float = 0.1) -> int:
     """Steps until both robots of a pair, both finished (w = 0), have z <= 0.1."""
-    from agent.controllers.roles.consensus import PIConsensus
+    from agent.controllers.roles.averaging import PIConsensus
 
     pis = [PIConsensus(k_z=0.5, k_p=8.0, k_i=4.0) for _ in range(2)]
     sent: list[list[tuple]] = [[], []]
@@ -133,5 +133,5 @@ def test_task_sequencing_consensus_decays_at_its_own_rate_under_delay():
     undelayed = _pi_decay_steps(1, rates=False)
     plain = _pi_decay_steps(5, rates=False)
     predicted = _pi_decay_steps(5, rates=True)
-    assert plain > 2 * undelayed  # the stale z_j holds the team back (docs/envelope.md)
+    assert plain > 2 * undelayed  # the stale z_j holds the team back (docs/reference/envelope.md)
     assert predicted <= 1.3 * undelayed

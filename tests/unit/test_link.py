@@ -11,7 +11,7 @@ from copath.wire.link import Link, MemoryBus, MemoryLink, key_matches
 from copath.wire.messages import Obs, PeerEnvelope, Stats, WireError, unpack
 from copath.wire.trust import check_origin
 from copath.wire.session import ZenohLink
-from orchestrator.inprocess import run_scenario
+from orchestrator.run.inprocess import run_scenario
 from tests.conftest import config
 
 

@@ -1,5 +1,5 @@
 """``run.liveliness_grace_s``: a liveliness token that goes and comes back within the grace
-period is not a lost process (a transport reset under CPU starvation, docs/faults.md)."""
+period is not a lost process (a transport reset under CPU starvation, docs/reference/faults.md)."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ from agent.runtime import RobotRuntime
 from copath.scenario import ConfigError, parse_scenario
 from copath.wire.keys import Keys
 from copath.wire.link import MemoryBus, MemoryLink
-from orchestrator.bench_scale import scenario_table
+from orchestrator.studies.bench.scale import scenario_table
 from sim.node import SimNode
 
 KEYS = Keys("grace")

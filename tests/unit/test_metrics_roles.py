@@ -5,7 +5,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from orchestrator.metrics_roles import roles_metrics
+from orchestrator.analysis.roles import roles_metrics
 
 DT = 0.5
 G0 = [[0.0, 0.0], [1.0, 0.0]]  # formation 0: two positions

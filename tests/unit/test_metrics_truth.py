@@ -12,12 +12,12 @@ import numpy as np
 import pytest
 
 import agent.controllers as registry
-from agent.controllers.consensus import ConsensusConfig, ConsensusController
+from agent.controllers.consensus.controller import ConsensusConfig, ConsensusController
 from copath.config import from_table
 from copath.paths import circle, lemniscate, line
 from copath.scenario import load_scenario
 from copath.slots import offset_points, solve_coordinate, switching_offsets, track_coordinate, wrap_near
-from orchestrator.inprocess import run_scenario
+from orchestrator.run.inprocess import run_scenario
 
 CONFIGS = pathlib.Path(__file__).resolve().parents[2] / "configs"
 LIAR_OFFSET = 1.0
@@ -138,7 +138,7 @@ def test_single_robot_has_no_team_figures():
 def test_copath_metrics_recomputes_metrics_json_from_a_log(e55, tmp_path, capsys):
     from copath.wire.keys import Keys
     from orchestrator.cli import main
-    from orchestrator.mcaplog import Recorder
+    from orchestrator.log.mcap import Recorder
 
     res = run_scenario(e55, run_id="metrics-from-log")
     raw = dict(e55.raw, _source=e55.source)
@@ -173,7 +173,7 @@ def test_a_team_standing_exactly_in_its_slots_scores_zero(stem):
     formation changes, over laps and through the lemniscate's crossing."""
     from types import SimpleNamespace
 
-    from orchestrator.metrics_truth import cross_track_series, team_geometry, truth_series
+    from orchestrator.analysis.truth import cross_track_series, team_geometry, truth_series
 
     sc = load_scenario(CONFIGS / f"{stem}.toml")
     geo = team_geometry(sc)
@@ -211,9 +211,9 @@ def test_metrics_table_is_validated(e55, table, key):
 
 
 def test_the_leader_sequence_applies_the_succession_rule_to_the_losses_on_record():
-    """docs/faults.md, "A new leader": the first robot of the team, in the scenario's order,
+    """docs/reference/faults.md, "A new leader": the first robot of the team, in the scenario's order,
     that is not lost when the leader is; coming back does not take the lead back."""
-    from orchestrator.metrics_truth import leader_sequence
+    from orchestrator.analysis.truth import leader_sequence
 
     team = ("leader", "f1", "f2")
     assert leader_sequence(team, []) == [(0.0, "leader")]
@@ -240,7 +240,7 @@ def test_after_an_election_the_truth_follows_the_new_leader():
     from types import SimpleNamespace
 
     from copath.wire.messages import Event
-    from orchestrator.metrics_truth import cross_track_series, team_geometry, truth_metrics, truth_series
+    from orchestrator.analysis.truth import cross_track_series, team_geometry, truth_metrics, truth_series
 
     sc = load_scenario(CONFIGS / "e5.1-leader-following-lemniscate.toml")
     geo = team_geometry(sc)

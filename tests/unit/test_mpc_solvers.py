@@ -1,7 +1,7 @@
 """The MPC scaffolding's alternative solver paths run the same controllers."""
 
 from copath.scenario import load_scenario
-from orchestrator.inprocess import run_scenario
+from orchestrator.run.inprocess import run_scenario
 from tests.conftest import config
 
 

@@ -9,9 +9,9 @@ import json
 import pytest
 
 from copath.scenario import load_scenario
-from orchestrator.inprocess import run_scenario
-from orchestrator.mcaplog import write_records
-from orchestrator.plot import FAMILIES, animate_run, applicable, drops, load_run, plot_run
+from orchestrator.run.inprocess import run_scenario
+from orchestrator.log.mcap import write_records
+from orchestrator.view.plot import FAMILIES, animate_run, applicable, drops, load_run, plot_run
 from tests.conftest import config
 
 PNG = b"\x89PNG\r\n\x1a\n"

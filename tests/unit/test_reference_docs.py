@@ -1,5 +1,5 @@
-"""The reference pages say what the code does: docs/scenarios.md, docs/controller-parameters.md,
-the Path API of docs/controllers.md and the metrics.json keys of docs/metrics.md."""
+"""The reference pages say what the code does: docs/reference/scenarios.md, docs/reference/controller-parameters.md,
+the Path API of docs/reference/controllers.md and the metrics.json keys of docs/reference/metrics.md."""
 
 from __future__ import annotations
 
@@ -17,12 +17,12 @@ from copath.ros2.config import RobotIO, WorldConfig
 from copath.safety import SafetyConfig
 from copath.scenario import (_ROBOT_KEYS, _TOP_KEYS, NetworkConfig, NoiseConfig, ObstacleSpec, Partition, RunConfig,
                              SensorConfig, Silence, parse_scenario)
-from copath.targets import AT_MOST, TARGETS
+from copath.grading import AT_MOST, TARGETS
 from orchestrator import reference
-from orchestrator.inprocess import run_scenario
-from orchestrator.metrics import FLEET_KEYS, ROBOT_KEYS
+from orchestrator.run.inprocess import run_scenario
+from orchestrator.analysis.metrics import FLEET_KEYS, ROBOT_KEYS
 
-DOCS = pathlib.Path(__file__).resolve().parents[2] / "docs"
+DOCS = pathlib.Path(__file__).resolve().parents[2] / "docs" / "reference"
 
 
 def _section(text: str, name: str) -> str:
@@ -40,13 +40,13 @@ def _rows(text: str) -> dict[str, str]:
 
 @pytest.mark.parametrize("page", reference.PAGES)
 def test_committed_pages_are_what_the_code_generates(page):
-    text = (DOCS / page).read_text()
+    text = (DOCS.parent / page).read_text()
     assert reference.blocks_in(text), f"docs/{page} has no generated block"
     assert reference.render(text) == text, f"docs/{page} is out of date: run python -m orchestrator.reference"
 
 
 def test_every_generated_block_is_on_a_page():
-    shown = [b for page in reference.PAGES for b in reference.blocks_in((DOCS / page).read_text())]
+    shown = [b for page in reference.PAGES for b in reference.blocks_in((DOCS.parent / page).read_text())]
     assert sorted(shown) == sorted(reference.BLOCKS)
 
 
@@ -66,7 +66,7 @@ def test_every_key_of_every_table_is_documented_with_its_default(cls, section):
     for f in dataclasses.fields(cls):
         if not f.init:
             continue
-        assert f.name in rows, f"{section} {f.name} is not in docs/scenarios.md"
+        assert f.name in rows, f"{section} {f.name} is not in docs/reference/scenarios.md"
         assert f"`{reference.default_text(f)}`" in rows[f.name], f"{section} {f.name}: default not shown"
 
 
@@ -92,8 +92,8 @@ def test_top_level_and_robot_keys_are_documented():
 def test_every_path_type_has_its_keys_and_a_figure():
     text = (DOCS / "scenarios.md").read_text()
     for kind in PATH_TYPES:
-        assert f"**`{kind}`**" in text and f"(img/path-{kind}.png)" in text, kind
-        assert (DOCS / "img" / f"path-{kind}.png").stat().st_size > 1000, kind
+        assert f"**`{kind}`**" in text and f"(../img/path-{kind}.png)" in text, kind
+        assert (DOCS.parent / "img" / f"path-{kind}.png").stat().st_size > 1000, kind
 
 
 def test_every_target_is_documented_with_its_direction():
@@ -120,9 +120,9 @@ def test_every_public_member_of_path_is_in_the_controller_guide():
     path = Path.__new__(Path)  # attributes set in __init__ count too
     names = {n for n in dir(Path) if not n.startswith("_")} | set(reference._PATH_ATTRS)
     for n in names:
-        assert f"`Path.{n}" in text, f"Path.{n} is not in docs/controllers.md"
+        assert f"`Path.{n}" in text, f"Path.{n} is not in docs/reference/controllers.md"
     for n in (n for n in dir(PathTable) if not n.startswith("_")):
-        assert f"`PathTable.{n}" in text, f"PathTable.{n} is not in docs/controllers.md"
+        assert f"`PathTable.{n}" in text, f"PathTable.{n} is not in docs/reference/controllers.md"
     assert path is not None
 
 
@@ -138,7 +138,7 @@ def _metrics_reference() -> dict[str, set[str]]:
 
 def test_every_metrics_key_a_run_emits_is_documented():
     """A short in-process run (0.3 s, two consensus robots): every key it writes is in
-    docs/metrics.md, and every key documented there is one the code knows."""
+    docs/reference/metrics.md, and every key documented there is one the code knows."""
     raw = {"id": "ref-keys", "run": {"duration_s": 0.3, "dt": 0.1},
            "paths": {"c": {"type": "circle", "radius": 1.0}},
            "controller": {"type": "consensus"},
@@ -146,10 +146,10 @@ def test_every_metrics_key_a_run_emits_is_documented():
                       {"name": "r2", "pose": [0.0, 1.0, 3.14], "path": "c"}]}
     m = run_scenario(parse_scenario(raw)).metrics
     doc = _metrics_reference()
-    assert set(m) - doc["top"] == set(), f"top-level keys not in docs/metrics.md: {set(m) - doc['top']}"
+    assert set(m) - doc["top"] == set(), f"top-level keys not in docs/reference/metrics.md: {set(m) - doc['top']}"
     emitted = set().union(*(set(v) for v in m["robots"].values()))
-    assert emitted - doc["robots"] == set(), f"per-robot keys not in docs/metrics.md: {emitted - doc['robots']}"
-    assert set(m["fleet"]) - doc["fleet"] == set(), f"fleet keys not in docs/metrics.md: {set(m['fleet']) - doc['fleet']}"
+    assert emitted - doc["robots"] == set(), f"per-robot keys not in docs/reference/metrics.md: {emitted - doc['robots']}"
+    assert set(m["fleet"]) - doc["fleet"] == set(), f"fleet keys not in docs/reference/metrics.md: {set(m['fleet']) - doc['fleet']}"
     # and nothing documented is unknown (roles teams add three per-task keys)
     roles_extra = {"assignment_cost_per_task", "assignment_cost_optimal_per_task", "assignment_duplicates"}
     assert doc["robots"] <= set(ROBOT_KEYS) | emitted
@@ -159,7 +159,7 @@ def test_every_metrics_key_a_run_emits_is_documented():
 
 
 def test_the_example_of_the_scenario_reference_is_valid(tmp_path):
-    from orchestrator.validate import validate_file
+    from orchestrator.run.validate import validate_file
 
     text = (DOCS / "scenarios.md").read_text()
     example = re.search(r"```toml\n(.*?)```", text, re.S).group(1)

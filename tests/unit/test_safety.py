@@ -223,7 +223,7 @@ def _passes(model, cfg, pa, pb, steps=150, dt=0.1):
 
 def test_lookahead_barrier_bound_keeps_centres_apart():
     # h_z = ||z_i - p_j|| - (r_i + r_j + margin + spread + l_i + l_j) >= 0 implies
-    # ||p_i - p_j|| >= ||z_i - p_j|| - l_i >= r_i + r_j + margin (docs/safety.md)
+    # ||p_i - p_j|| >= ||z_i - p_j|| - l_i >= r_i + r_j + margin (docs/reference/safety.md)
     rng = np.random.default_rng(3)
     model = UnicycleModel()
     f = SafetyFilter(CFG, model, 0.1)
@@ -513,7 +513,7 @@ def test_filter_takes_tubes_as_objects_or_arrays_alike():
 
 def test_a_silent_robot_is_held_as_a_static_disc_until_heard_again():
     """A robot gone quiet holds itself still once cut off, at the latest ``silent_hold_s``
-    after its last stamp (docs/safety.md, "A lost robot"): a static disc covering where it
+    after its last stamp (docs/reference/safety.md, "A lost robot"): a static disc covering where it
     may have driven by then, not forgotten with age; heard again, an ordinary neighbour."""
     models = {"a": OmniModel(), "b": OmniModel(), "c": OmniModel()}
     cfg = SafetyConfig(enabled=True, speed_max_mps=1.0)

@@ -19,7 +19,7 @@ def _base(**over):
 
 def test_every_shipped_config_is_valid_and_named_by_its_experiment_id():
     """A reproduction names its experiment (``experiment``) and starts with its id; a variant
-    of one (a box on the lane, a lost robot: docs/detours.md) has no ``experiment``, so that
+    of one (a box on the lane, a lost robot: docs/reference/detours.md) has no ``experiment``, so that
     the id still means the reproduction, and its name starts with that experiment's id."""
     files = sorted(CONFIGS.glob("*.toml"))
     assert files
@@ -125,7 +125,7 @@ pose = [-1.0, 0.0, -1.57]
 
 
 def _errors(tmp_path, text):
-    from orchestrator.validate import validate_file
+    from orchestrator.run.validate import validate_file
 
     f = tmp_path / "t.toml"
     f.write_text(text)
@@ -153,7 +153,7 @@ def test_an_invalid_path_table_is_reported_once_without_a_cascade(tmp_path):
 
 def test_controller_offsets_and_declared_offsets_must_agree(tmp_path):
     base = _TEAM + "[metrics]\npath_offsets = { r1 = 0.5, r2 = 0.0 }\n"
-    from orchestrator.validate import validate_file
+    from orchestrator.run.validate import validate_file
 
     f = tmp_path / "ok.toml"
     f.write_text(base)

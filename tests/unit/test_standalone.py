@@ -1,8 +1,8 @@
 """The project stands alone: its files cite the dissertation and the project's own docs/,
 never notes kept outside the repository, and every docs/ file or entry they cite exists.
 
-Entries are cited as ``docs/<topic>.md, <letter(s)><number>`` (e.g. "docs/ambiguities.md,
-A21" or a range "docs/measurements.md, M1-M3"); an entry is a markdown heading that
+Entries are cited as ``docs/<topic>.md, <letter(s)><number>`` (e.g. "docs/reference/ambiguities.md,
+A21" or a range "docs/journal/measurements.md, M1-M3"); an entry is a markdown heading that
 starts with its label. The experiment catalogue covers every bundled scenario.
 """
 
@@ -30,8 +30,8 @@ _OUTSIDE = re.compile(
         ]
     )
 )
-_DOC = re.compile(r"docs/([\w.-]+\.md)")
-_ENTRY = re.compile(r"docs/([\w.-]+\.md),\s+([A-Z]{1,2}\d+(?:\.\d+)?)(?:-([A-Z]{1,2}\d+(?:\.\d+)?))?")
+_DOC = re.compile(r"docs/((?:[\w.-]+/)?[\w.-]+\.md)")
+_ENTRY = re.compile(r"docs/((?:[\w.-]+/)?[\w.-]+\.md),\s+([A-Z]{1,2}\d+(?:\.\d+)?)(?:-([A-Z]{1,2}\d+(?:\.\d+)?))?")
 
 
 def _tracked() -> list[Path]:
@@ -88,14 +88,14 @@ def test_every_cited_doc_and_entry_exists():
 
 def test_docs_index_lists_every_doc():
     index = (ROOT / "docs" / "README.md").read_text(encoding="utf-8")
-    docs = sorted(p.name for p in (ROOT / "docs").glob("*.md") if p.name != "README.md")
+    docs = sorted(str(p.relative_to(ROOT / "docs")) for p in (ROOT / "docs").glob("*/*.md"))
     assert docs, "docs/ holds topic files"
     unlisted = [name for name in docs if f"({name})" not in index]
     assert not unlisted, f"docs/README.md does not link {unlisted}"
 
 
 def test_experiment_catalogue_covers_every_bundled_scenario():
-    catalogue = (ROOT / "docs" / "experiments.md").read_text(encoding="utf-8")
+    catalogue = (ROOT / "docs" / "reference" / "experiments.md").read_text(encoding="utf-8")
     entries = {m.group(1).lower() for m in re.finditer(r"^###\s+(E\d+\.\d+)\b", catalogue, re.M)}
     configs = sorted((ROOT / "configs").glob("*.toml"))
     assert configs, "configs/ holds the bundled scenarios"
@@ -103,7 +103,7 @@ def test_experiment_catalogue_covers_every_bundled_scenario():
     for f in configs:
         experiment = tomllib.loads(f.read_text(encoding="utf-8")).get("experiment")
         if f"`{f.name}`" not in catalogue:
-            missing.append(f"{f.name} is not in docs/experiments.md")
+            missing.append(f"{f.name} is not in docs/reference/experiments.md")
         if experiment is not None and str(experiment).lower() not in entries:
-            missing.append(f"{f.name}: experiment {experiment!r} has no entry in docs/experiments.md")
+            missing.append(f"{f.name}: experiment {experiment!r} has no entry in docs/reference/experiments.md")
     assert not missing, "\n".join(missing)

@@ -18,9 +18,9 @@ from google.protobuf import descriptor_pb2, descriptor_pool, json_format, messag
 from mcap.reader import make_reader
 
 from copath.scenario import load_scenario
-from orchestrator.inprocess import run_scenario
-from orchestrator.mcaplog import Recorder, read_log, write_records
-from orchestrator.viz import TOPICS, process_log_messages
+from orchestrator.run.inprocess import run_scenario
+from orchestrator.log.mcap import Recorder, read_log, write_records
+from orchestrator.view.foxglove import TOPICS, process_log_messages
 from tests.conftest import config
 
 JSON_SCHEMAS = pathlib.Path(__file__).resolve().parents[1] / "data" / "foxglove_jsonschema"
@@ -227,7 +227,7 @@ def test_a_plan_in_telemetry_is_drawn_as_the_robots_horizon(tmp_path):
 
 
 def test_log_tail_sends_complete_lines_once(tmp_path):
-    from orchestrator.live import LogTail
+    from orchestrator.view.live import LogTail
 
     got = []
 
@@ -249,7 +249,7 @@ def test_the_json_schemas_reject_what_foxglove_would_not_read():
     from foxglove import messages as fm
 
     from copath.wire.keys import Keys
-    from orchestrator.viz import VizBuilder
+    from orchestrator.view.foxglove import VizBuilder
 
     (_, msg), = VizBuilder(load_scenario(config("e5.5-")), Keys("x")).static()
     schema = type(msg).get_schema()

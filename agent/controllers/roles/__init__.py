@@ -13,7 +13,7 @@ One module per concern:
 - :mod:`.controller`  the per-robot state machine tying them together.
 """
 
-from .config import RolesConfig
-from .controller import MESSAGE_KIND, RolesController, build
+from agent.controllers.roles.config import RolesConfig
+from agent.controllers.roles.controller import MESSAGE_KIND, RolesController, build
 
 __all__ = ["build", "RolesController", "RolesConfig", "MESSAGE_KIND"]

@@ -31,7 +31,7 @@ knows N. A robot that hears a neighbour already working on a later task follows 
 A robot in ``Observation.lost`` leaves the graph, the consensus and the relayed
 assignment problem at once; the position it claimed is released (a tombstone that later
 merges respect, lifted when it is heard claiming again) and a robot without a position
-takes it (docs/ambiguities.md, A38). A robot that has lost every robot it knew cannot tell
+takes it (docs/reference/ambiguities.md, A38). A robot that has lost every robot it knew cannot tell
 its own silent radio from their loss and applies the same rule to itself: unless it was
 within R_max of its position when it was last heard, its position has been released, so
 it holds still, a stationary obstacle like a dead robot, until it hears one again.
@@ -71,7 +71,7 @@ logger = logging.getLogger(__name__)
 
 
 CLAIMS_EVERY = 10
-"""The relayed claims table (docs/ambiguities.md, A38) goes in every 10th ``role_state``
+"""The relayed claims table (docs/reference/ambiguities.md, A38) goes in every 10th ``role_state``
 (1 s at 10 Hz) while no robot is lost: a sender's own claim travels first-hand in every
 message (``claim``, ``d``, its position), and the table, 0.5 kB for 16 robots, doubled the
 cost of decoding and validating each message (36 -> 73 us) for news that is only used
@@ -121,7 +121,7 @@ class RolesController:
 
     # ------------------------------------------------------------------ tasks
     def _enter_task(self, k: int, p: np.ndarray, t: float) -> None:
-        """Start formation k with fresh phase objects (docs/ambiguities.md, A26: (6.16) is reset)."""
+        """Start formation k with fresh phase objects (docs/reference/ambiguities.md, A26: (6.16) is reset)."""
         if self.roles is not None:
             self.tasks.conflicts_total += self.roles.book.conflicts_initiated
         self.tasks.begin(k, t)
@@ -139,7 +139,7 @@ class RolesController:
 
     # ------------------------------------------------------------------ phase 1
     def _adopt(self, centroid: np.ndarray, rotation: float, p: np.ndarray) -> None:
-        """Place the formation (docs/ambiguities.md, A22); the initial choice follows in
+        """Place the formation (docs/reference/ambiguities.md, A22); the initial choice follows in
         :meth:`_choose`."""
         self.tasks.transform = (np.asarray(centroid, dtype=float), float(rotation))
         self.roles.place(transform_targets(self.templates[self.tasks.task], centroid, rotation))

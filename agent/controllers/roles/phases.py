@@ -32,7 +32,7 @@ from copath.control import LatestMessages, PeerMessage
 
 from .assignment import Claim, RoleBook, Ruling, local_hungarian, nearest_position
 from .config import RolesConfig
-from .consensus import AverageConsensus, NeighbourContribution, PIConsensus
+from .averaging import AverageConsensus, NeighbourContribution, PIConsensus
 from .navigation import NavigationGains, parking_point, polar_control, repulsive_shift
 from .rotation import moment_vector
 
@@ -97,7 +97,7 @@ class PeerTable:
 
     def ingest(self, inbox, t: float, lost: frozenset[str] = frozenset()) -> None:
         """Take in one step's messages (newest per neighbour by stamp); ``lost`` are the
-        robots known to be gone (docs/ambiguities.md, A38)."""
+        robots known to be gone (docs/reference/ambiguities.md, A38)."""
         self._fresh = None
         self.lost = frozenset(lost)
         for got in self.inbox.update(inbox, t):
@@ -162,7 +162,7 @@ class Agreement:
     longer of ``neighbour_timeout_s`` and ``consensus_hold_s``: under loss a neighbour
     that drops out of the range-limited graph for a few silent steps and comes back
     would change every degree, hence every Metropolis weight, and stop the iteration
-    each time (docs/envelope.md). Its edge flow is state, so its newest one is used.
+    each time (docs/reference/envelope.md). Its edge flow is state, so its newest one is used.
     """
 
     def __init__(self, name: str, p: np.ndarray, cfg: RolesConfig) -> None:
@@ -308,7 +308,7 @@ class Assignment:
         return self.book.position
 
     def place(self, targets: np.ndarray) -> None:
-        """The agreed target positions (ambiguity A22 of docs/ambiguities.md for the transform)."""
+        """The agreed target positions (ambiguity A22 of docs/reference/ambiguities.md for the transform)."""
         self.targets = targets
         self.announce_targets = True
 

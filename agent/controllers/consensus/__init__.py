@@ -1,0 +1,1 @@
+"""The ``consensus`` controller family (see :mod:`.controller`)."""

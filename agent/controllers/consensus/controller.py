@@ -1,0 +1,316 @@
+"""Lyapunov path following + second-order consensus for unicycles (Sec. 5.5, (5.33)-(5.46)).
+
+Each robot follows its own path Gamma_i parameterised by arc length s_i. Its virtual
+vehicle's path coordinate obeys the second-order consensus (5.42), which tracks the
+common group speed v_0 and drives s_i - s_j to s_dij = s_di - s_dj over an undirected
+connected graph (Theorem 8). The unicycle tracks the virtual vehicle with (5.39)-(5.40)
+and the transient heading shaping delta(y_e) of [211].
+
+Neighbour messages are old when they arrive: each carries the sender's acceleration, the
+receiver predicts the neighbour over the message age, and beyond ``age_nominal_s`` the
+coupling gains of (5.42) are scheduled on that age, so the law keeps working at a second
+of delay and half the messages lost (docs/reference/envelope.md).
+
+The reusable pieces (errors (5.33), the tracking law (5.39)-(5.40) with the closed-form
+delta-dot of docs/reference/ambiguities.md, A18, the consensus acceleration (5.42)) are module functions so
+other controllers (heterogeneous team, formation switching) call them instead of
+copying them.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, Callable, Iterable, Mapping, Sequence
+
+import numpy as np
+
+from copath.config import require
+from copath.paths import wrap_to_pi
+
+from copath.control import (
+    LatestMessages,
+    Observation,
+    Outgoing,
+    PeerMessage,
+    Received,
+    RobotContext,
+    StepResult,
+    controller,
+)
+
+__all__ = [
+    "ConsensusGains",
+    "ConsensusConfig",
+    "ConsensusController",
+    "NeighbourState",
+    "tracking_errors",
+    "tracking_law",
+    "consensus_acceleration",
+    "neighbour_states",
+    "age_weight",
+    "MESSAGE_KIND",
+    "build",
+]
+
+
+MESSAGE_KIND = "coord_state"
+"""Kind of the coordination-state broadcast (s_i, sdot_i, s_di) of (5.42)."""
+
+
+@dataclass(frozen=True)
+class ConsensusGains:
+    """Gains of the Sec. 5.5 law (published values of E5.4 as defaults); shared by every
+    controller built on (5.39)-(5.42)."""
+
+    v0: float = 0.2
+    """Group speed v_0 = v_di for every robot [m/s] (5.35)."""
+    k1: float = 5.0
+    """Heading weight 1/k1 in V (5.36) and k1 in (5.40)."""
+    k2: float = 0.5
+    """Coordination (position) consensus gain of (5.42)."""
+    k3: float = 0.2
+    """Speed consensus gain of (5.42)."""
+    k4: float = 0.25
+    """Along-track gain of (5.39)."""
+    k5: float = 1.0
+    """Heading gain of (5.40)."""
+    k6: float = 0.2
+    """Speed-tracking gain of (5.42)."""
+    theta_a: float = math.pi / 4
+    """Transient heading amplitude theta_a of delta(y_e) [rad]."""
+    sdot_max: float = 0.5
+    """Upper bound of the virtual-vehicle speed [m/s] (chosen: the unicycle's v_max)."""
+    predict_acceleration: bool = True
+    """Predict a neighbour over its message age with its received rate and acceleration
+    (else with its rate only) (delay-robust coupling, docs/reference/envelope.md)."""
+    age_nominal_s: float = 0.6
+    """Age of information up to which the coupling of (5.42) runs at full speed; beyond it
+    k2 and k3 are scaled by g^2 and g, g = age_nominal_s / age (docs/reference/envelope.md) [s]."""
+
+    def __post_init__(self) -> None:
+        for k in ("k1", "k2", "k3", "k4", "k5", "k6"):
+            require(getattr(self, k) > 0, k, getattr(self, k), "gains of (5.39)-(5.42) must be > 0")
+        require(self.v0 >= 0, "v0", self.v0, "must be >= 0")
+        require(self.sdot_max > 0, "sdot_max", self.sdot_max, "must be > 0")
+        require(0 < self.theta_a < math.pi / 2, "theta_a", self.theta_a, "must be in (0, pi/2)")
+        require(self.age_nominal_s > 0, "age_nominal_s", self.age_nominal_s, "must be > 0")
+
+    def gains(self) -> dict:
+        """The gain fields only (to build another gains-based config)."""
+        return {f: getattr(self, f) for f in ConsensusGains.__dataclass_fields__}
+
+
+@dataclass(frozen=True)
+class ConsensusConfig(ConsensusGains):
+    """Parameters of one robot of the Sec. 5.5 team."""
+
+    s_d: float = 0.0
+    """This robot's desired coordination offset s_di [m]; s_dij = s_di - s_dj."""
+    s0: float | None = None
+    """Initial path coordinate [m]; default: projection of the first pose onto the path."""
+    extrapolate: bool = True
+    """Compensate neighbour messages for their age: s_j + sdot_j * age (docs/journal/measurements.md, M15),
+    plus sddot_j * age^2 / 2 when the message carries the sender's acceleration (docs/reference/envelope.md)."""
+    stale_after_s: float = 2.0
+    """Neighbour information older than this is ignored [s]."""
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        require(self.stale_after_s > 0, "stale_after_s", self.stale_after_s, "must be > 0")
+
+
+@dataclass(frozen=True)
+class NeighbourState:
+    """A neighbour's coordination state as used by (5.42)."""
+
+    xi: float
+    """s_j - s_dj, extrapolated to now [m]."""
+    sdot: float
+    """sdot_j [m/s], extrapolated to now with the sender's acceleration when it sent one."""
+    weight: float = 1.0
+    """Time scale g in (0, 1] of the coupling from the age of the information
+    (:func:`age_weight`): k2 enters as g^2 k2, k3 as g k3."""
+
+
+def age_weight(age: float, nominal: float) -> float:
+    """Time scale of the coupling from the age of information: 1 up to ``nominal``,
+    nominal / age beyond.
+
+    The coupling of (5.42) with k2 -> g^2 k2 and k3 -> g k3 is the nominal coupling run
+    g times slower; a delay tau in it acts like the delay g tau in the nominal one, so
+    g = nominal / age keeps the effective delay at ``nominal`` (docs/reference/envelope.md)."""
+    return 1.0 if age <= nominal else nominal / age
+
+
+def _coordination(payload: Mapping[str, Any]) -> tuple[float, float, float, float]:
+    """(s_j, sdot_j, s_dj, sddot_j) of a ``coord_state`` payload (sddot_j = 0 when not sent)."""
+    return float(payload["s"]), float(payload["sdot"]), float(payload["s_d"]), float(payload.get("sddot", 0.0))
+
+
+def neighbour_states(
+    received: Iterable[Received],
+    t: float,
+    xi: float,
+    coordinate: Callable[[Mapping[str, Any]], tuple[float, ...]],
+    extrapolate: bool = True,
+    period: float = 0.0,
+    age_nominal_s: float | None = None,
+    predict_acceleration: bool = True,
+) -> list[NeighbourState]:
+    """The neighbours' coordination states of (5.42) at time t from their newest messages.
+
+    ``coordinate(payload)`` gives (c_j, cdot_j, offset_j[, cddot_j]) with xi_j = c_j -
+    offset_j; c_j and cdot_j are predicted over the message age a with the received rate
+    and acceleration, c_j + cdot_j a + cddot_j a^2 / 2 and cdot_j + cddot_j a
+    (docs/reference/controllers-notes.md, N3; docs/reference/envelope.md). With ``age_nominal_s`` each
+    neighbour's coupling is weighted by :func:`age_weight`. On a shared closed path of
+    length ``period`` a lap apart is the same place: xi_j is moved by whole periods next
+    to this robot's own ``xi``.
+    """
+    out = []
+    for got in received:
+        c, cdot, offset, *rest = coordinate(got.payload)
+        cddot = rest[0] if rest and predict_acceleration else 0.0
+        a = got.since_stamp(t)
+        if extrapolate:
+            c, cdot = c + cdot * a + 0.5 * cddot * a * a, cdot + cddot * a
+        xi_j = c - offset
+        if period:
+            xi_j += period * round((xi - xi_j) / period)
+        w = 1.0 if age_nominal_s is None else age_weight(a, age_nominal_s)
+        out.append(NeighbourState(xi=xi_j, sdot=cdot, weight=w))
+    return out
+
+
+def tracking_errors(pose, ref_pose) -> tuple[float, float, float]:
+    """Errors (5.33): robot frame, desired minus actual; theta_e wrapped."""
+    x, y, th = (float(v) for v in pose)
+    xd, yd, thd = (float(v) for v in ref_pose)
+    c, s = math.cos(th), math.sin(th)
+    dx, dy = xd - x, yd - y
+    return c * dx + s * dy, -s * dx + c * dy, wrap_to_pi(thd - th)
+
+
+def _sin_diff_ratio(a: float, b: float) -> float:
+    """(sin a - sin b) / (a - b) = cos((a+b)/2) sinc((a-b)/2), safe at a = b."""
+    h = 0.5 * (a - b)
+    sinc = 1.0 - h * h / 6.0 if abs(h) < 1e-4 else math.sin(h) / h
+    return math.cos(0.5 * (a + b)) * sinc
+
+
+def tracking_law(
+    errors: tuple[float, float, float],
+    v_d: float,
+    kappa: float,
+    sdot: float,
+    k1: float,
+    k4: float,
+    k5: float,
+    theta_a: float = math.pi / 4,
+) -> tuple[float, float, float]:
+    """Unicycle tracking law (5.39)-(5.40) of a virtual vehicle moving at sdot.
+
+    Returns ``(v, omega, delta)``. delta-dot = c y_e-dot depends on omega through (5.34),
+    an algebraic loop solved in closed form (docs/reference/ambiguities.md, A18):
+    omega = (A - c sdot sin theta_e) / (1 - c x_e), with the delta-dot term dropped
+    when the denominator is near singular (|x_e| >= 4/pi m on the wrong side).
+    """
+    x_e, y_e, th_e = errors
+    sgn = 1.0 if v_d >= 0 else -1.0
+    t = math.tanh(y_e)
+    delta = -sgn * theta_a * t
+    v = k4 * x_e + v_d * math.cos(th_e)  # (5.39)
+    omega_d = kappa * v_d
+    A = k5 * (th_e - delta) + omega_d + k1 * y_e * v_d * _sin_diff_ratio(th_e, delta)
+    c = -sgn * theta_a * (1.0 - t * t)  # d delta / d y_e
+    den = 1.0 - c * x_e
+    if den > 0.2:
+        omega = (A - c * sdot * math.sin(th_e)) / den  # (5.40) with delta-dot solved
+    else:
+        omega = A
+    return v, omega, delta
+
+
+def consensus_acceleration(
+    errors: tuple[float, float, float],
+    delta: float,
+    kappa: float,
+    sdot: float,
+    xi: float,
+    neighbours: Sequence[NeighbourState],
+    cfg: ConsensusConfig,
+    v_d: float,
+    v_d_dot: float = 0.0,
+) -> float:
+    """Second-order consensus with a reference velocity, (5.42).
+
+    s-ddot = v_d-dot - k6 (sdot - v_d) - x_e cos th_e - y_e sin th_e - (th_e - delta) kappa / k1
+             - 2 k2 sum_j (xi_i - xi_j) - k3 sum_j (sdot_i - sdot_j),
+    with xi = s - s_d, so xi_i - xi_j = s_i - s_j - s_dij.
+    """
+    x_e, y_e, th_e = errors
+    acc = (
+        v_d_dot
+        - cfg.k6 * (sdot - v_d)
+        - x_e * math.cos(th_e)
+        - y_e * math.sin(th_e)
+        - (th_e - delta) * kappa / cfg.k1
+    )
+    for n in neighbours:
+        g = n.weight
+        acc -= 2.0 * g * g * cfg.k2 * (xi - n.xi) + g * cfg.k3 * (sdot - n.sdot)
+    return acc
+
+
+class ConsensusController:
+    """One robot of the Sec. 5.5 team: path following + consensus on s (Theorem 8)."""
+
+    def __init__(self, ctx: RobotContext, cfg: ConsensusConfig) -> None:
+        self.ctx = ctx
+        self.cfg = cfg
+        self.path = ctx.own_path
+        self.model = ctx.model
+        self.s: float | None = cfg.s0
+        self.sdot = cfg.v0
+        self.inbox = LatestMessages(kinds=(MESSAGE_KIND,))
+
+    def _neighbour_states(self, t: float, xi: float) -> list[NeighbourState]:
+        return neighbour_states(self.inbox.fresh(MESSAGE_KIND, t, self.cfg.stale_after_s).values(), t, xi,
+                                _coordination, self.cfg.extrapolate,
+                                self.path.length if self.path.closed else 0.0, self.cfg.age_nominal_s,
+                                self.cfg.predict_acceleration)
+
+    def step(self, obs: Observation, inbox: Sequence[PeerMessage]) -> StepResult:
+        cfg = self.cfg
+        self.inbox.update(inbox, obs.t, obs.lost)  # a lost robot leaves the graph at once
+        if self.s is None:
+            self.s = self.path.project(obs.pose[:2])
+        s, sdot = self.s, self.sdot
+        x_d, y_d, th_d, kappa = self.path.frame(s)
+        errors = tracking_errors(obs.pose, (x_d, y_d, th_d))
+        v_d = cfg.v0
+        v, omega, delta = tracking_law(errors, v_d, kappa, sdot, cfg.k1, cfg.k4, cfg.k5, cfg.theta_a)
+        v, omega = self.model.saturate((v, omega))[0] if self.model.kind == "unicycle" else (v, omega)
+        xi = s - cfg.s_d
+        acc = consensus_acceleration(errors, delta, kappa, sdot, xi, self._neighbour_states(obs.t, xi), cfg, v_d)
+        # integrate the virtual vehicle at the control rate (docs/reference/controllers-notes.md, N3)
+        self.sdot = min(max(sdot + acc * obs.dt, 0.0), cfg.sdot_max)
+        self.s = s + self.sdot * obs.dt
+        sddot = (self.sdot - sdot) / obs.dt  # the acceleration applied, for the neighbours' prediction
+        msg = Outgoing(MESSAGE_KIND, {"s": s, "sdot": sdot, "s_d": cfg.s_d, "sddot": sddot})
+        telemetry = {
+            "ref": [x_d, y_d, th_d],
+            "s": s,
+            "sdot": sdot,
+            "xi": xi,
+            "speed_error": sdot - v_d,
+            "xi_period": self.path.length if self.path.closed else 0.0,
+        }
+        return StepResult(np.array([float(v), float(omega)]), [msg], telemetry)
+
+
+@controller(config=ConsensusConfig, needs_path=True)
+def build(ctx: RobotContext, cfg: ConsensusConfig) -> ConsensusController:
+    """Builder of ``consensus`` (Sec. 5.5)."""
+    return ConsensusController(ctx, cfg)

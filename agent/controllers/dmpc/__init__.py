@@ -1,0 +1,1 @@
+"""The ``dmpc`` controller family (see :mod:`.controller`)."""

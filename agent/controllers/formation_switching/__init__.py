@@ -1,0 +1,1 @@
+"""The ``formation_switching`` controller family (see :mod:`.controller`)."""

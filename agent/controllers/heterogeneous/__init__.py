@@ -1,0 +1,1 @@
+"""The ``heterogeneous`` controller family (see :mod:`.controller`)."""

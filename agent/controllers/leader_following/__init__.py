@@ -1,0 +1,1 @@
+"""The ``leader_following`` controller family (see :mod:`.controller`)."""

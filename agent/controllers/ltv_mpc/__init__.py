@@ -1,0 +1,1 @@
+"""The ``ltv_mpc`` controller family (see :mod:`.controller`)."""

@@ -1,0 +1,1 @@
+"""The ``omni_nmpc`` controller family (see :mod:`.controller`)."""

@@ -1,0 +1,1 @@
+"""The ``unicycle_nmpc`` controller family (see :mod:`.controller`)."""

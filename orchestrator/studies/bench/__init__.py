@@ -1,0 +1,1 @@
+"""Benchmarks: scripts and ``copath bench`` subcommands that print figures of speed, scale and robustness."""

@@ -337,7 +337,7 @@ class AgentNode:
         self.link.subscribe(self.keys.obs(name), self._on_obs)
         peer, over = list(self.rt.subscriptions), list(self.rt.overhear_subscriptions)
         # one subscription (one decode) per message: a peer key the overheard keys cover is
-        # received through them and handed to both callbacks (docs/reference/performance.md, P2)
+        # received through them and handed to both callbacks (docs/reference/performance.md, the Link interface (P2))
         self._peer_exprs = peer
         self._also_peer: dict[str, bool] = {}
         for key in over:
@@ -457,7 +457,7 @@ def process_start_time() -> float:
 REALTIME_NICE = 15
 """Realtime: agents lower their scheduling priority by this much (``os.nice``) so that on a
 busy machine the simulator's 100 Hz physics and the router and recorder are served first
-(docs/reference/performance.md, P9-P10: at 128 robots 5 was not enough); 0 leaves it."""
+(docs/reference/performance.md, goals measured and realtime at 128 robots (P9-P10): at 128 robots 5 was not enough); 0 leaves it."""
 
 
 def _yield_to_simulator() -> None:

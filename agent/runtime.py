@@ -70,7 +70,7 @@ def silent_hold_s(scenario: Scenario) -> float:
 def handles_cut_off(scenario: Scenario, name: str) -> bool:
     """Whether robot ``name``'s controller handles being cut off itself: its parameter
     dataclass says so (``handles_cut_off = True``, a class constant; the roles controller,
-    docs/reference/ambiguities.md A38). Read from the scenario, so every robot knows it of every other;
+    docs/reference/ambiguities.md, robot lost in role assignment (A38)). Read from the scenario, so every robot knows it of every other;
     the class is enough (parsing every robot's parameters cost each runtime 0.46 ms per role
     robot, N^2 over a fleet)."""
     try:

@@ -43,7 +43,7 @@ def rotation_speed_limit(omega, qdot_max: float = 1.9, L_w: float = 0.195):
     """Translational speed bound r(omega) of (4.17)-(4.18): qdot_max - L_w |omega|.
 
     (4.18) prints r = (9.7436 - |omega|) / 5.1283, which is the same line since
-    9.7436 = qdot_max / L_w and 5.1283 = 1 / L_w (docs/reference/derivations.md, D2).
+    9.7436 = qdot_max / L_w and 5.1283 = 1 / L_w (docs/reference/derivations.md, speed disc (D2)).
     """
     return np.maximum(0.0, qdot_max - L_w * np.abs(omega))
 
@@ -157,7 +157,7 @@ class OmniModel:
         return self.M @ np.asarray(cmd, dtype=float).reshape(3)
 
     def world_wheel_matrix(self, theta: float) -> np.ndarray:
-        """J(theta) with qdot = J(theta) [xdot, ydot, omega] (docs/reference/derivations.md, D1; rows of (4.11))."""
+        """J(theta) with qdot = J(theta) [xdot, ydot, omega] (docs/reference/derivations.md, omni wheel map (D1); rows of (4.11))."""
         d = self.delta
         return np.array(
             [

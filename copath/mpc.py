@@ -1,5 +1,5 @@
 """Shared MPC scaffolding: RK4 multiple shooting, a fast SQP solver factory, warm starts
-and the fallback policy (Sec. 2.2; docs/reference/conventions.md, C3).
+and the fallback policy (Sec. 2.2; docs/reference/conventions.md, NMPC transcription (C3)).
 
 Every MPC controller of the project (Ch. 4 and Ch. 5) describes its optimal control
 problem with an :class:`OCP` and solves it with an :class:`MPCSolver`. The solver is
@@ -20,9 +20,9 @@ The objective is a sum of squares (Gauss-Newton friendly) plus a linear slack pe
 
 Write a weighted stage cost x^T Q x + u^T R u as the residual ``sqrt(Q) x, sqrt(R) u``
 (see :func:`weighted`). Exactly one of these is evaluated per stage; the time step is
-*not* multiplied into the cost (docs/reference/ambiguities.md, A29: the QP cost (4.30) is an unscaled sum).
+*not* multiplied into the cost (docs/reference/ambiguities.md, stage cost and sampling time (A29): the QP cost (4.30) is an unscaled sum).
 
-Solver (docs/journal/measurements.md, M11-M12)
+Solver (docs/journal/measurements.md, NMPC solver choice (W11-W12))
 -----------------------------------------------
 ``sqpmethod`` with a structure-exploiting QP solver (``qrqp`` by default, ``osqp`` or
 ``qpoases`` on request), a Gauss-Newton Hessian ``2 J_r^T J_r`` (passed as ``hess_lag``),
@@ -169,7 +169,7 @@ def jit_available() -> bool:
 
 @dataclass(frozen=True)
 class SolverConfig:
-    """How to solve an :class:`OCP` (defaults: the fastest prototype of docs/journal/measurements.md, M11-M12)."""
+    """How to solve an :class:`OCP` (defaults: the fastest prototype of docs/journal/measurements.md, NMPC solver choice (W11-W12))."""
 
     method: str = "sqp"
     """``sqp`` (sqpmethod) or ``ipopt``."""
@@ -699,7 +699,7 @@ class MPCSolver:
         # keep the initial guess inside the box (active-set QP solvers prefer it)
         np.clip(w0, lo, hi, out=w0)
         try:
-            self._trigger()  # zero-copy call through the FunctionBuffer (docs/journal/measurements.md, M11: ~60 us saved)
+            self._trigger()  # zero-copy call through the FunctionBuffer (docs/journal/measurements.md, NMPC solver choice (W11): ~60 us saved)
             stats = self._buffer.stats()
         except Exception as exc:  # CasADi raises RuntimeError on evaluation errors
             return self._fail(f"exception: {exc}", x0)

@@ -5,7 +5,7 @@ positions occupy its target positions, one robot per target (every target when t
 at least as many robots as targets, Sec. 6.2.1; every robot on its own target otherwise),
 each within a tolerance. The targets are the ones the team announced (the template after
 the translation and rotation it agreed on, Algorithm 6.1); announced targets that are not a
-rigid motion of the template do not count (docs/reference/metrics.md, M5).
+rigid motion of the template do not count (docs/reference/metrics.md, tasks of Chapter 6 (M5)).
 
 Two readers use it, so they cannot disagree: the metrics (``tasks_completed``,
 ``task_times_s``: every formation, over the whole log) and the simulator's stop rule

@@ -65,7 +65,7 @@ class OffsetState:
 def offset_state(path: Path, s, q, dq=0.0, ddq=0.0) -> OffsetState:
     """Offset-curve geometry at s for the lateral offset q(s) with derivatives dq, ddq.
 
-    Uses the smooth form k_i = b / ((1 - k_c q) H) (docs/reference/derivations.md, D3), valid while
+    Uses the smooth form k_i = b / ((1 - k_c q) H) (docs/reference/derivations.md, offset curves (D3)), valid while
     1 - k_c q > 0; raises ValueError at or beyond a cusp.
     """
     s = np.asarray(s, dtype=float)

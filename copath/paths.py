@@ -1,4 +1,4 @@
-"""Reference paths re-parameterised by arc length (docs/reference/conventions.md, C2).
+"""Reference paths re-parameterised by arc length (docs/reference/conventions.md, arc-length paths (C2)).
 
 Every reference curve of the dissertation is "numerically parameterized by the path
 length s". A :class:`Path` wraps a parametric curve r(phi) and exposes, for any arc
@@ -46,7 +46,7 @@ __all__ = [
 
 
 def wrap_to_pi(a):
-    """Wrap angles to (-pi, pi] with atan2(sin, cos) (docs/reference/conventions.md, C1).
+    """Wrap angles to (-pi, pi] with atan2(sin, cos) (docs/reference/conventions.md, frames and angles (C1)).
 
     A Python number takes a scalar path (no numpy round trip: estimators call this per
     measurement); arrays are wrapped element-wise."""
@@ -209,7 +209,7 @@ class Path:
         return float(th[0]) if scalar else th
 
     def kappa(self, s):
-        """Signed curvature at s (docs/reference/conventions.md, C1); zero beyond open ends."""
+        """Signed curvature at s (docs/reference/conventions.md, frames and angles (C1)); zero beyond open ends."""
         scalar = np.ndim(s) == 0
         s_in, _, extra = self._split(s)
         k = self._kappa_phi(self._phi(s_in))
@@ -260,7 +260,7 @@ class Path:
         path, without its numpy overhead on one-element arrays. The curve and the
         transcendental functions are still numpy's (the curve's nine stencil points in
         one call; ``arctan2`` and ``hypot`` as ufuncs), since libm's and numpy's may
-        differ in the last bit (docs/reference/performance.md, P12)."""
+        differ in the last bit (docs/reference/performance.md, profile of E5.4 (P12))."""
         L = self.length
         if self.closed:
             laps = math.floor(s / L)
@@ -368,7 +368,7 @@ class Path:
         :class:`PathTable` on a grid of ``grid_step`` (open paths include their straight
         extensions of one path length at both ends), evaluated at ``fmod(s, length)`` for
         closed paths so s may be a symbolic state that grows without bound
-        (docs/reference/conventions.md, C2). ``theta`` is continuous within one lap; wrap angle
+        (docs/reference/conventions.md, arc-length paths (C2)). ``theta`` is continuous within one lap; wrap angle
         differences with atan2(sin, cos).
         """
         if self._cas is not None:

@@ -107,7 +107,7 @@ class RunConfig:
     until: str = "duration"
     """``duration``: the run lasts ``duration_s``; ``tasks_done``: it ends ``until_margin_s``
     after the truth completes the last formation of the task queue (Chapter 6; the rule of
-    docs/reference/metrics.md, M5, :mod:`copath.occupancy`), and at ``duration_s`` at the latest
+    docs/reference/metrics.md, tasks of Chapter 6 (M5), :mod:`copath.occupancy`), and at ``duration_s`` at the latest
     (docs/reference/performance.md, "Runs that end when their work is done")."""
     until_margin_s: float = 5.0
     """``until = "tasks_done"``: simulated time kept after the truth completed the last task [s]."""
@@ -129,7 +129,7 @@ class RunConfig:
     """Zenoh transport lease of every process of the run and of its router [s]: a frozen
     process loses its liveliness within about this time. On a machine with far more
     processes than cores (about a hundred robots on two) a starved transport misses a 1 s
-    lease and is reset; a longer lease avoids that (docs/reference/performance.md, P10)."""
+    lease and is reset; a longer lease avoids that (docs/reference/performance.md, realtime at 128 robots (P10))."""
     liveliness_grace_s: float = 5.0
     """A liveliness token that disappears counts as a lost process only when it has not come
     back within this time [s]: a transport reset under CPU starvation (the 1 s lease lapses,
@@ -141,7 +141,7 @@ class RunConfig:
     filter keeps a silent robot as a static disc round where it may have stopped (it cannot
     be seen, nor coordinate); ``drive`` lets its controller drive on, blind, and the filters
     forget it after ``safety.max_age_s`` (docs/reference/faults.md, "Gone quiet"; docs/reference/safety.md).
-    A robot's controller may handle being cut off itself (roles, docs/reference/ambiguities.md A38)."""
+    A robot's controller may handle being cut off itself (roles, docs/reference/ambiguities.md, robot lost in role assignment (A38))."""
 
     def __post_init__(self) -> None:
         require(self.duration_s > 0, "run.duration_s", self.duration_s, "must be > 0")

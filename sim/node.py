@@ -49,7 +49,7 @@ class TaskWatch:
     task queue (Chapter 6, controller ``roles``).
 
     A controller never grades itself: the rule is the metrics' own
-    (:mod:`copath.occupancy`, docs/reference/metrics.md M5): the true positions occupy the targets
+    (:mod:`copath.occupancy`, docs/reference/metrics.md, tasks of Chapter 6 (M5)): the true positions occupy the targets
     the team announced for the last formation, one robot per target, within the task
     tolerance. Only the announced targets come from the robots' telemetry
     (``formation_targets``, data); the positions are the simulator's. Each robot publishes

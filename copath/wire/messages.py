@@ -6,7 +6,7 @@ another version, an unknown tag, a missing field or a field of the wrong type ra
 :class:`WireError`, which receivers count as a reject instead of crashing.
 
 Arrays cross the boundary as lists of Python floats (msgpack refuses numpy scalars
-other than float64; docs/journal/measurements.md, M7).
+other than float64; docs/journal/measurements.md, msgpack at the wire boundary (W7)).
 """
 
 from __future__ import annotations
@@ -56,7 +56,7 @@ def to_plain(x: Any) -> Any:
 
     Values of the plain types and lists, tuples and dicts of them take a fast path (no
     recursion per element); the result, and so the packed bytes, are the same as the
-    general conversion's (docs/reference/performance.md, P12)."""
+    general conversion's (docs/reference/performance.md, profile of E5.4 (P12))."""
     t = type(x)
     if t in _PLAIN_TYPES:
         return x

@@ -30,7 +30,7 @@ PAYLOADS: dict[str, dict[str, str]] = {
     # Ch. 6 roles: task-tagged state broadcast; moment consensus with edge flows
     # (Algorithm 6.1), (6.16) z/eta, claim/taken sets and rulings [pos, winner, loser] (Alg. 6.2);
     # claims {robot: [pos, stamp, on it]} and tombstones gone {robot: stamp} of lost robots
-    # (docs/reference/ambiguities.md, A38).
+    # (docs/reference/ambiguities.md, robot lost in role assignment (A38)).
     "role_state": {"task": "int", "index": "int", "phase": "int", "pos": "floats", "vel": "floats", "deg": "int",
                    "z": "float", "eta": "float", "claim": "int", "d": "float", "taken": "ints", "park": "floats",
                    "rulings": "any", "ac_x?": "floats", "ac_to?": "strs", "ac_a?": "floats", "ac_e?": "floats", "ac_deg?": "int",

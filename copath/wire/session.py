@@ -1,12 +1,12 @@
 """The one Zenoh session factory and link of copath (nothing else opens a session).
 
-Isolation (docs/journal/measurements.md, M1-M3): multicast scouting is always off; by default
+Isolation (docs/journal/measurements.md, isolation and multicast scouting (W1-W3)): multicast scouting is always off; by default
 sessions listen and connect on loopback only, on a port chosen per run, so two runs on
 one machine never hear each other. The orchestrator hosts the run's router itself (a Python
 session in ``router`` mode: no zenohd to install or start); simulator and agents
 connect to it as clients. ``--connect``/``--listen`` endpoints allow multi-host runs.
 
-Pitfalls handled here (docs/journal/measurements.md, M5-M6): a subscriber still declared at
+Pitfalls handled here (docs/journal/measurements.md, congestion control and wire pitfalls (W5-W6)): a subscriber still declared at
 interpreter exit hangs the process, so :class:`ZenohLink` undeclares everything in
 ``close()`` (use it as a context manager); callbacks catch their own exceptions and
 count rejects; records that must not be lost are published with congestion control BLOCK.
@@ -96,7 +96,7 @@ class SessionConfig:
         conf.insert_json5("connect/endpoints", json.dumps(list(self.connect)))
         conf.insert_json5("listen/endpoints", json.dumps(list(self.listen)))
         if self.mode == "client":
-            # keep retrying the router instead of failing at once (docs/journal/measurements.md, M3)
+            # keep retrying the router instead of failing at once (docs/journal/measurements.md, clients started before their router (W3))
             conf.insert_json5("connect/timeout_ms", "-1")
             # after a transport reset (a lease that lapsed on a starved machine) reconnect within
             # 0.1-1 s, well inside run.liveliness_grace_s (zenoh's default backs off from 1 s to 4 s)
@@ -212,7 +212,7 @@ class ZenohLink:
         neighbour broadcasts): a receiver that falls behind (a starved process) then loses
         old samples instead of making the router wait for it. With BLOCK the router's
         forwarding waits for that receiver's queue, stops reading the other links (their
-        1 s lease lapses) and after 5 s closes the transport (docs/reference/performance.md, P10).
+        1 s lease lapses) and after 5 s closes the transport (docs/reference/performance.md, realtime at 128 robots (P10)).
         The local recorder still gets every record. Call before the first publish on a key."""
         self._droppable += tuple(key_exprs)
 

@@ -5,7 +5,7 @@ in-process run (records kept in memory), so a run's figures are always explainab
 from its log. Keys are a public contract: add keys, never rename; a figure that does not
 apply to a scenario is ``null``.
 
-Definitions (errors are taken after ``run.settle_s``; docs/reference/metrics.md, M1-M6):
+Definitions (errors are taken after ``run.settle_s``; docs/reference/metrics.md, truth figures (M1-M6)):
 - coordination, formation, cross-track and task figures come from the simulator's truth
   and the scenario's geometry (:mod:`orchestrator.analysis.truth`,
   :mod:`orchestrator.analysis.roles`), never from what a controller says about itself;
@@ -72,7 +72,7 @@ ROBOT_KEYS = ROBOT_KEYS + ("outage_open",)
 # realtime clock: control periods whose step ended after the next period had begun, from the
 # robot's closing account; null in lockstep (where the simulator counts missed_ticks)
 ROBOT_KEYS = ROBOT_KEYS + ("deadline_misses",)
-# the path coordinate s (M1) of the true position at the run's end; null without a path
+# the path coordinate s (path coordinate of a true position, M1) of the true position at the run's end; null without a path
 # (docs/reference/metrics.md, M4b)
 ROBOT_KEYS = ROBOT_KEYS + ("path_progress_m",)
 # controller steps that raised (or returned an invalid command), each stopping the robot for
@@ -117,7 +117,7 @@ FLEET_KEYS = (
     "messages_lost",
     "accounts_reconstructed",
     # a leader-following team (Sec. 5.3): who led from when, [[t, robot], ...], by the
-    # succession rule on the simulator's loss events; null for other teams (docs/reference/metrics.md, M3)
+    # succession rule on the simulator's loss events; null for other teams (docs/reference/metrics.md, formation error (M3))
     "leaders",
     "controller_errors",
 )

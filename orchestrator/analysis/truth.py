@@ -410,7 +410,7 @@ def truth_series(trace, scenario: Scenario, geometry: TeamGeometry | None = None
     T = min(len(trace.robots[n].t) for n in names)
     t = trace.robots[names[0]].t[:T]
     S = {n: track_coordinate(geo.paths[n], trace.robots[n].pose[:T, :2]) for n in names}
-    # every family grades the live robots only (docs/reference/metrics.md, M2): a robot is left out
+    # every family grades the live robots only (docs/reference/metrics.md, coordination error (M2)): a robot is left out
     # while the simulator records it lost, and graded again once it is back in its slot
     gone = outages(getattr(trace, "events", None) or ())
     lost = _lost_masks(t, gone, names)

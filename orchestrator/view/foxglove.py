@@ -143,7 +143,7 @@ class FaultReplay:
 
     The fault layer (``copath.wire.faults``) draws from one seeded stream per directed link,
     once per message in the sender's order, so replaying it on the messages of the log
-    gives every receiver's decision without the receivers' help (docs/reference/viewing.md, V1).
+    gives every receiver's decision without the receivers' help (docs/reference/viewing.md, dropped messages reconstructed (V1)).
     """
 
     def __init__(self, scenario: Scenario) -> None:

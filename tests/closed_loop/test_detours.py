@@ -19,7 +19,7 @@ from tests.conftest import config
 
 
 def _progress(res, scen) -> dict[str, float]:
-    """How far each robot truly got along its path [m] (M1 of docs/reference/metrics.md)."""
+    """How far each robot truly got along its path [m] (path coordinate of a true position (M1) of docs/reference/metrics.md)."""
     ser = truth_series(res.trace, scen)
     if ser is None:  # one robot: no team
         S = {r.name: track_coordinate(scen.paths[r.path], res.trace.robots[r.name].pose[:, :2]) for r in scen.robots}

@@ -1,4 +1,4 @@
-"""Role assignment without a lost robot (Ch. 6, Algorithm 6.2; docs/reference/ambiguities.md, A38).
+"""Role assignment without a lost robot (Ch. 6, Algorithm 6.2; docs/reference/ambiguities.md, robot lost in role assignment (A38)).
 
 E6.3 (16 robots, 12 positions) with r5's radio silent for the rest of the run and
 ``run.on_robot_failure = "continue"``: the team leaves r5 out of its assignment problem,

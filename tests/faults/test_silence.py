@@ -110,7 +110,7 @@ def test_continue_keeps_the_rest_in_consensus_and_the_robot_rejoins_it(continued
     r3 = tr.robots["r3"]
     still = (r3.t >= 6.6) & (r3.t <= 15.0)  # after braking
     assert np.ptp(r3.pose[still, 0]) < 1e-3 and np.ptp(r3.pose[still, 1]) < 1e-3
-    # r3 is not graded while it is lost, nor until it is back in its slot (docs/reference/metrics.md, M3):
+    # r3 is not graded while it is lost, nor until it is back in its slot (docs/reference/metrics.md, formation error (M3)):
     # the figure is the live robots' (0.136 m measured; 0.3-1.0 m when r3 was graded throughout)
     assert continued.metrics["fleet"]["coordination_error_max_m"] < 0.2
     # heard again, it catches up: the three are back in consensus by 40 s (0.05 m measured

@@ -1,5 +1,5 @@
 """Average consensus of Chapter 6 reaches the exact average on any connected undirected
-graph without knowing N ((2.21) read as docs/reference/ambiguities.md, A21): the synchronous Metropolis
+graph without knowing N ((2.21) read as docs/reference/ambiguities.md, average consensus with 1/|N_i| (A21)): the synchronous Metropolis
 iteration, and the per-robot edge-flow form under message delay, loss and a changing
 neighbour set."""
 

@@ -80,7 +80,7 @@ def test_pf_error_dynamics_match_kinematics(eight, seed):
 
 
 def test_pf_virtual_inputs_are_regulation_form(eight):
-    """(4.4)-(4.5): xdot_e = A(kappa s-dot) x_e + u_e with the corrected u_3 (docs/reference/ambiguities.md, A1)."""
+    """(4.4)-(4.5): xdot_e = A(kappa s-dot) x_e + u_e with the corrected u_3 (docs/reference/ambiguities.md, sign of the third virtual input (A1))."""
     xe = np.array([0.1, -0.2, 0.3])
     body, sdot, k = np.array([0.8, 0.1, 0.4]), 0.9, 1.5
     ue = _num(pf_virtual_inputs(xe, body, sdot, k * sdot))
@@ -184,7 +184,7 @@ def test_linear_model_is_the_linearisation():
 
 
 def test_condensing_matches_rollout():
-    """(4.31) with the corrected products (docs/reference/ambiguities.md, A5): X = G x + S U equals
+    """(4.31) with the corrected products (docs/reference/ambiguities.md, transition products (A5)): X = G x + S U equals
     the recursion."""
     rng = np.random.default_rng(3)
     N, Ts = 6, 0.05
@@ -271,7 +271,7 @@ def test_unicycle_error_dynamics_match_kinematics(seed):
 
 
 def test_unicycle_terminal_law_inverts_virtual_inputs():
-    """(4.50)-(4.51) read as docs/reference/ambiguities.md, A9: u_e(terminal commands) =
+    """(4.50)-(4.51) read as docs/reference/ambiguities.md, terminal-law commands (A9): u_e(terminal commands) =
     -(alpha x, beta theta, gamma eta)."""
     xe = np.array([0.2, -0.1, 0.3, -0.05])
     gains, k, v_d, vdot_d = (2.5, 1.0, 1.0), 1.0, 0.5, 0.0
@@ -282,7 +282,7 @@ def test_unicycle_terminal_law_inverts_virtual_inputs():
 
 def test_obstacle_cost_magnitudes_and_scan_points():
     """(4.54) with (4.55): about 0.55 at 0.1 m and 0.01 at 0.5 m straight ahead
-    (docs/reference/derivations.md, D8)."""
+    (docs/reference/derivations.md, obstacle cost magnitude (D8))."""
     pose = np.array([0.0, 0.0, 0.0])
     c01 = float(obstacle_cost(pose, [[0.1, 0.0]], [1.0], 1.5, 0.01, 10.0))
     c05 = float(obstacle_cost(pose, [[0.5, 0.0]], [1.0], 1.5, 0.01, 10.0))

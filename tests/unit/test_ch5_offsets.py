@@ -78,7 +78,7 @@ def test_formation_schedule_offsets_follow_the_quintic():
 
 
 def test_follower_reference_is_consistent_in_time_during_a_transition():
-    """The reference velocities (u_p = sdot_c + pdot, docs/reference/ambiguities.md, A28) match the motion of the
+    """The reference velocities (u_p = sdot_c + pdot, docs/reference/ambiguities.md, u_p when the along-track offset varies (A28)) match the motion of the
     reference pose when p and q change together."""
     sch = _schedule()
     t = np.linspace(4.0, 11.0, 3501)

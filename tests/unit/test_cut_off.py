@@ -1,6 +1,6 @@
 """A robot that has lost every robot it has heard, at least one by silence, is cut off: the
 runtime commands zero until it hears one again (docs/reference/faults.md, "Gone quiet"), unless its
-controller handles that itself (the roles controller, docs/reference/ambiguities.md A38)."""
+controller handles that itself (the roles controller, docs/reference/ambiguities.md, robot lost in role assignment (A38))."""
 
 from __future__ import annotations
 

@@ -20,7 +20,7 @@ def test_world_wheel_matrix_is_rotated_body_map():
 
 
 def test_rotation_speed_limit_table_of_spec():
-    # docs/reference/derivations.md, D2: r(omega) = 1.900, 1.705, 1.315, 0.925 at |omega| = 0, 1, 3, 5
+    # docs/reference/derivations.md, speed disc (D2): r(omega) = 1.900, 1.705, 1.315, 0.925 at |omega| = 0, 1, 3, 5
     np.testing.assert_allclose(rotation_speed_limit(np.array([0, 1, 3, -5])), [1.9, 1.705, 1.315, 0.925], atol=1e-9)
     m = OmniModel()
     # every translation direction with |v| <= r(omega) is feasible for the wheels

@@ -1,4 +1,4 @@
-"""Path geometry: arc length, curvature, tangents, nearest point (docs/reference/conventions.md, C1-C2)."""
+"""Path geometry: arc length, curvature, tangents, nearest point (docs/reference/conventions.md, frames and angles and arc-length paths (C1-C2))."""
 
 import math
 
@@ -10,14 +10,14 @@ from copath.paths import circle, ellipse, eight_curve, lemniscate, line, make_pa
 
 def test_eight_curve_length_and_peak_curvature():
     p = eight_curve(1.8, 1.2)
-    assert p.length == pytest.approx(12.86, abs=0.005)  # docs/reference/derivations.md, D5: 12.86 m
+    assert p.length == pytest.approx(12.86, abs=0.005)  # docs/reference/derivations.md, published path lengths (D5): 12.86 m
     k = p.kappa(np.linspace(0, p.length, 4000))
-    assert np.abs(k).max() == pytest.approx(3.28, abs=0.01)  # D5: kappa_max ~ 3.28
+    assert np.abs(k).max() == pytest.approx(3.28, abs=0.01)  # published path lengths (D5): kappa_max ~ 3.28
 
 
 def test_lemniscate_length_and_curvature():
     p = lemniscate(2.3)
-    assert p.length == pytest.approx(12.06, abs=0.01)  # docs/reference/derivations.md, D5
+    assert p.length == pytest.approx(12.06, abs=0.01)  # docs/reference/derivations.md, published path lengths (D5)
     assert np.abs(p.kappa(np.linspace(0, p.length, 4000))).max() == pytest.approx(1.30, abs=0.01)
 
 

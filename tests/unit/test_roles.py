@@ -55,7 +55,7 @@ def test_power_iteration_finds_the_principal_axis_up_to_sign(seed, n, angle, asp
         return
     q, _ = power_iteration(C)
     assert abs(abs(q @ V[:, 1]) - 1.0) < 1e-6  # same axis, up to the sign
-    assert q[0] > 0 or (abs(q[0]) < 1e-9 and q[1] > 0)  # canonical sign (docs/reference/ambiguities.md, A23)
+    assert q[0] > 0 or (abs(q[0]) < 1e-9 and q[1] > 0)  # canonical sign (docs/reference/ambiguities.md, start vector and principal axis (A23))
     th = principal_axis(C)
     assert abs(math.sin(th - math.atan2(V[1, 1], V[0, 1]))) < 1e-5
 
@@ -101,7 +101,7 @@ def test_transform_targets_is_a_ccw_rotation_about_the_centroid(rot, cx, cy):
     T = np.array([[0.0, 0.0], [2.0, 0.0], [0.0, 1.0]])
     G = transform_targets(T, (cx, cy), rot)
     np.testing.assert_allclose(G.mean(axis=0), [cx, cy], atol=1e-12)
-    # distances preserved, orientation counter-clockwise (docs/reference/ambiguities.md, A22)
+    # distances preserved, orientation counter-clockwise (docs/reference/ambiguities.md, rotation direction and order of translation (A22))
     np.testing.assert_allclose(np.hypot(*(G[1] - G[0])), 2.0, atol=1e-12)
     d = G[1] - G[0]
     assert math.atan2(d[1], d[0]) == pytest.approx(rot, abs=1e-9) or abs(abs(rot) - math.pi) < 1e-9
@@ -215,7 +215,7 @@ def test_navigation_law_drives_a_unicycle_to_the_target(x, y, th):
 
 
 def test_repulsion_magnitudes_of_spec():
-    # (6.12) with k_r = 0.2, R_max = 0.4 (docs/reference/derivations.md, D9):
+    # (6.12) with k_r = 0.2, R_max = 0.4 (docs/reference/derivations.md, repulsive target shift (D9)):
     # 0.58 m at 0.35 m, 1.85 m at 0.30, 12.5 m at 0.20
     assert repulsion_magnitude(0.35, 0.2, 0.4) == pytest.approx(0.58, abs=0.01)
     assert repulsion_magnitude(0.30, 0.2, 0.4) == pytest.approx(1.85, abs=0.01)
@@ -310,7 +310,7 @@ def test_pi_consensus_reset_and_config_validation():
     pi = PIConsensus(0.2)
     pi.z, pi.eta = 0.05, 0.3
     pi.reset()
-    assert (pi.z, pi.eta) == (1.0, 0.0)  # docs/reference/ambiguities.md, A26
+    assert (pi.z, pi.eta) == (1.0, 0.0)  # docs/reference/ambiguities.md, reset at a task switch (A26)
     with pytest.raises(ConfigError, match="orientation"):
         from_table(RolesConfig, {"formations": [[[0, 0]]], "orientation": "random"}, "controller")
     with pytest.raises(ConfigError, match="formations"):

@@ -1,5 +1,5 @@
 """The safety filter's pass-through test on floats (``SafetyFilter._clear``, docs/reference/performance.md
-P15) decides as the full test on the QP's rows: it passes only where the rows hold, and then
+against IR-SIM (P15)) decides as the full test on the QP's rows: it passes only where the rows hold, and then
 returns the same smallest barrier; the filter's result is the one of the full path."""
 
 from __future__ import annotations

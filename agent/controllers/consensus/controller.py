@@ -12,7 +12,7 @@ coupling gains of (5.42) are scheduled on that age, so the law keeps working at 
 of delay and half the messages lost (docs/reference/envelope.md).
 
 The reusable pieces (errors (5.33), the tracking law (5.39)-(5.40) with the closed-form
-delta-dot of docs/reference/ambiguities.md, A18, the consensus acceleration (5.42)) are module functions so
+delta-dot of docs/reference/ambiguities.md, algebraic loop through delta-dot (A18), the consensus acceleration (5.42)) are module functions so
 other controllers (heterogeneous team, formation switching) call them instead of
 copying them.
 """
@@ -110,7 +110,7 @@ class ConsensusConfig(ConsensusGains):
     s0: float | None = None
     """Initial path coordinate [m]; default: projection of the first pose onto the path."""
     extrapolate: bool = True
-    """Compensate neighbour messages for their age: s_j + sdot_j * age (docs/journal/measurements.md, M15),
+    """Compensate neighbour messages for their age: s_j + sdot_j * age (docs/journal/measurements.md, convergence times and delay tolerance (W15)),
     plus sddot_j * age^2 / 2 when the message carries the sender's acceleration (docs/reference/envelope.md)."""
     stale_after_s: float = 2.0
     """Neighbour information older than this is ignored [s]."""
@@ -163,7 +163,7 @@ def neighbour_states(
     ``coordinate(payload)`` gives (c_j, cdot_j, offset_j[, cddot_j]) with xi_j = c_j -
     offset_j; c_j and cdot_j are predicted over the message age a with the received rate
     and acceleration, c_j + cdot_j a + cddot_j a^2 / 2 and cdot_j + cddot_j a
-    (docs/reference/controllers-notes.md, N3; docs/reference/envelope.md). With ``age_nominal_s`` each
+    (docs/reference/controllers-notes.md, consensus virtual vehicle (N3); docs/reference/envelope.md). With ``age_nominal_s`` each
     neighbour's coupling is weighted by :func:`age_weight`. On a shared closed path of
     length ``period`` a lap apart is the same place: xi_j is moved by whole periods next
     to this robot's own ``xi``.
@@ -212,7 +212,7 @@ def tracking_law(
     """Unicycle tracking law (5.39)-(5.40) of a virtual vehicle moving at sdot.
 
     Returns ``(v, omega, delta)``. delta-dot = c y_e-dot depends on omega through (5.34),
-    an algebraic loop solved in closed form (docs/reference/ambiguities.md, A18):
+    an algebraic loop solved in closed form (docs/reference/ambiguities.md, algebraic loop through delta-dot (A18)):
     omega = (A - c sdot sin theta_e) / (1 - c x_e), with the delta-dot term dropped
     when the denominator is near singular (|x_e| >= 4/pi m on the wrong side).
     """
@@ -294,7 +294,7 @@ class ConsensusController:
         v, omega = self.model.saturate((v, omega))[0] if self.model.kind == "unicycle" else (v, omega)
         xi = s - cfg.s_d
         acc = consensus_acceleration(errors, delta, kappa, sdot, xi, self._neighbour_states(obs.t, xi), cfg, v_d)
-        # integrate the virtual vehicle at the control rate (docs/reference/controllers-notes.md, N3)
+        # integrate the virtual vehicle at the control rate (docs/reference/controllers-notes.md, consensus virtual vehicle (N3))
         self.sdot = min(max(sdot + acc * obs.dt, 0.0), cfg.sdot_max)
         self.s = s + self.sdot * obs.dt
         sddot = (self.sdot - sdot) / obs.dt  # the acceleration applied, for the neighbours' prediction

@@ -14,13 +14,13 @@ so robots on different paths coordinate by morphing (E5.3); on a shared path the
 is one (E5.2). The compatibility constraint |s_i^p - s_hat_i| <= delta^2 mu keeps the
 new plan near what the neighbours were told (applied from k >= 1); terminal
 ingredients (5.19)-(5.22) are soft: the penalty V = 1/2 x^T P x plus a penalty on the
-terminal coordination error (docs/reference/ambiguities.md, A14).
+terminal coordination error (docs/reference/ambiguities.md, the DMPC terminal region (A14)).
 
 After each solve the robot builds its next assumed trajectory (Algorithm 5.1 step 2:
 the optimal s* shifted, followed by the terminal controller of (5.21) rolled out over
 one period) and sends it to its graph neighbours as ``assumed_traj``.
 
-Error state and inputs (5.14)-(5.16), with phi = theta_t - theta_r (docs/reference/ambiguities.md, A12)::
+Error state and inputs (5.14)-(5.16), with phi = theta_t - theta_r (docs/reference/ambiguities.md, the angle phi (A12))::
 
     x = [x_e, y_e, phi, theta_e, eta, s],   w = [sdot, u2, u3, u4]
     x_e' = y_e kappa sdot + u1,    u1 = -sdot (1 - kappa q) + (eta + u_r) cos(phi)
@@ -31,7 +31,7 @@ Error state and inputs (5.14)-(5.16), with phi = theta_t - theta_r (docs/referen
 u_R = eta + u_r of the omni robot are states of the model, kept by the controller
 between updates; the body command is u = u_R cos(theta_t - theta), v = u_R sin(theta_t - theta).
 The path curvature along the horizon is a stage parameter evaluated on the previous
-plan (linearised curvature, docs/journal/measurements.md, M12).
+plan (linearised curvature, docs/journal/measurements.md, what made the omni NMPC fast (W12)).
 """
 
 from __future__ import annotations
@@ -102,7 +102,7 @@ class DMPCConfig(SolverFields):
     W: float = 0.05
     """Coupling weight W of (5.17), E5.2."""
     W_terminal: float = 0.05
-    """Soft terminal coordination penalty (docs/reference/ambiguities.md, A14; chosen equal to W)."""
+    """Soft terminal coordination penalty (docs/reference/ambiguities.md, the DMPC terminal region (A14); chosen equal to W)."""
     mu: float = 10.0
     """Compatibility constant mu: |s^p - s_hat| <= delta^2 mu (5.18), E5.2."""
     sdot_max: float = 1.0
@@ -276,7 +276,7 @@ def _ocp(cfg: DMPCConfig, n_nbr: int, dt: float, q: float, scale: float, M: np.n
         psi = scale * x[IS]
         for j in range(n_nbr):
             target, on = p[5 + 2 * j], p[6 + 2 * j]
-            res.append(sqWT * on * (psi - target))  # soft terminal coordination (docs/reference/ambiguities.md, A14)
+            res.append(sqWT * on * (psi - target))  # soft terminal coordination (docs/reference/ambiguities.md, the DMPC terminal region (A14))
         return ca.vertcat(*res)
 
     def constraints(x, u, p):

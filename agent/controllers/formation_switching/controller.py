@@ -12,7 +12,7 @@ schedule on the formation coordinate xi) moves both offsets from the old slot to
 one with the quintic (5.1)-(5.3) over ``transition_m`` metres of the robot's own path
 coordinate, so q, q' and q'' stay continuous and the offset curve stays C2; the change
 of s_di speeds the robot up or slows it down through the consensus (as p_i in Sec. 5.3,
-docs/reference/ambiguities.md, A32). During a transition, the repulsive field (6.12)-(6.15)
+docs/reference/ambiguities.md, changes of the along-track offset (A32)). During a transition, the repulsive field (6.12)-(6.15)
 (:func:`agent.controllers.roles.navigation.repulsive_shift`) pushes the reference
 position away from the other robots so that crossing slots do not collide.
 

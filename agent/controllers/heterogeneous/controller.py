@@ -1,4 +1,4 @@
-"""Heterogeneous team: an omni leader and unicycle followers (Sec. 5.5.5, docs/reference/ambiguities.md, A27).
+"""Heterogeneous team: an omni leader and unicycle followers (Sec. 5.5.5, docs/reference/ambiguities.md, heterogeneous team's follower law (A27)).
 
 The formation control is centralised on the leader, as in the original: the leader
 follows a waypoint path (a C2 spline through waypoints, standing in for the CARMEN
@@ -7,7 +7,7 @@ follower's pose estimate (``hetero_report``: the camera fix plus compass heading
 original), computes the follower's velocities and sends them as ``hetero_cmd``. The
 followers only apply the newest command (and stop when it is too old).
 
-Follower law (the text says only "a nonlinear controller"; docs/reference/ambiguities.md, A27): follower i
+Follower law (the text says only "a nonlinear controller"; docs/reference/ambiguities.md, heterogeneous team's follower law (A27)): follower i
 tracks the point of the leader's path at s_L - s_d,i with lateral offset q_i, i.e. the
 offset-curve reference (5.10) with the velocities (5.11)-(5.12), using the unicycle
 tracking law (5.39)-(5.40) of Sec. 5.5 (``consensus.tracking_law``); its reference
@@ -17,7 +17,7 @@ Age of information: the leader predicts each follower's pose forward by the repo
 age plus the expected link latency (the command will be applied one latency later)
 with the last command it sent, and evaluates the reference at that time.
 
-Beyond the dissertation (it had no collision avoidance; docs/reference/controllers-notes.md, N6): before
+Beyond the dissertation (it had no collision avoidance; docs/reference/controllers-notes.md, heterogeneous braking near other robots (N6)): before
 sending, the leader scales down each robot's forward speed when it is heading towards
 another robot closer than ``slow_distance`` beyond the contact distance, down to a stop
 at ``stop_distance`` (its own (u, v) too). Headings keep turning, so a robot can steer

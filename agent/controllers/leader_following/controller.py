@@ -9,11 +9,11 @@ reference trajectory on the offset curve with the velocity profile (5.4)-(5.5), 
 tracks it with the omni trajectory-tracking NMPC (5.8).
 
 Formation changes move q with the quintic (5.3) and p with the same quintic
-(docs/reference/ambiguities.md, A32), both scheduled on the leader's path coordinate; the schedule
+(docs/reference/ambiguities.md, changes of the along-track offset (A32)), both scheduled on the leader's path coordinate; the schedule
 is checked at build time so that the planned slots of no two robots come closer than a safety
 distance (the text leaves the collision-free timing to the designer).
 
-Beyond the dissertation (docs/reference/controllers-notes.md, N4): formation feedback. Followers report
+Beyond the dissertation (docs/reference/controllers-notes.md, leader-following formation feedback (N4)): formation feedback. Followers report
 their tracking error (``follower_status``) and the leader lowers its reference speed
 while a follower lags; ``formation_feedback = false`` reproduces the original scheme.
 
@@ -85,7 +85,7 @@ class LeaderPlan:
 
     The leader's progress is estimated as s_c(tau) = s_l + int_{t_k}^{tau} sdot(sigma)
     dsigma with sdot piecewise constant on steps of delta_l and held at its last value
-    beyond the plan (Sec. 5.3.3; docs/reference/controllers-notes.md, N5). A lost packet
+    beyond the plan (Sec. 5.3.3; docs/reference/controllers-notes.md, follower's estimate of the leader (N5)). A lost packet
     is filled in by reusing this plan with its larger age (step 2).
     """
 
@@ -254,7 +254,7 @@ def follower_reference(path: Path | PathTable, schedule: FormationSchedule, robo
     (App. A). With p and q functions of s_c (the schedule's coordinate), the derivatives
     along the follower's own coordinate are dq/ds_i = q_c' / (1 + p_c') and
     d2q/ds_i^2 = (q_c'' (1 + p_c') - q_c' p_c'') / (1 + p_c')^3. The speed at s_i is
-    u_p = sdot_c (1 + p_c') = sdot_c + pdot_i (docs/reference/ambiguities.md, A28), so u_{i,R} = H u_p (5.4) and
+    u_p = sdot_c (1 + p_c') = sdot_c + pdot_i (docs/reference/ambiguities.md, u_p when the along-track offset varies (A28)), so u_{i,R} = H u_p (5.4) and
     omega_{i,R} = k_i u_{i,R} (5.5).
     """
     s_c = np.atleast_1d(np.asarray(s_c, dtype=float))
@@ -408,7 +408,7 @@ class PathLeader(OmniPathFollower):
 
 
 class FormationFeedback:
-    """Formation feedback (beyond the text, docs/reference/controllers-notes.md, N4): the fraction of
+    """Formation feedback (beyond the text, docs/reference/controllers-notes.md, leader-following formation feedback (N4)): the fraction of
     u_R the team's reference point moves at, from the largest fresh follower error. Kept by
     the Sec. 5.3 leader and by a new leader that keeps C (docs/reference/faults.md)."""
 

@@ -4,17 +4,17 @@ Per control period:
 
 1. Velocity profile (4.25)-(4.27) along a look-ahead of N steps: the forward speed is
    ``min(u_max, min(u_R, r(omega_b)), sqrt(mu g / |kappa|))`` with r(omega) of
-   (4.17)-(4.18) (docs/reference/ambiguities.md, A7); the look-ahead points s_j follow the profile in time.
+   (4.17)-(4.18) (docs/reference/ambiguities.md, min(u_R, (4.18)) (A7)); the look-ahead points s_j follow the profile in time.
 2. Errors (4.19) in the path frame: (x_e, y_e, alpha_e, theta_e).
 3. Time-varying linear model (4.23), Euler-discretised (4.28)-(4.29) at the look-ahead
    points, condensed into X = G x_e + S U (4.31) with the corrected products of
-   docs/reference/ambiguities.md, A5, and the QP (4.32)-(4.33) with bounds (4.34)-(4.36) rewritten on the
-   decision variables (docs/reference/ambiguities.md, A6).
+   docs/reference/ambiguities.md, transition products (A5), and the QP (4.32)-(4.33) with bounds (4.34)-(4.36) rewritten on the
+   decision variables (docs/reference/ambiguities.md, bounds on omega and s-dot (A6)).
 4. Physical commands from U*(0): s-dot, the motion-direction rate Phi u_R, omega, and
    (u, v) by (4.21).
 
 Condensing is a CasADi SX Function (JIT-compiled when a compiler works) and the QP is
-solved by the ``daqp`` conic inside one compiled call (docs/journal/measurements.md, M13: 0.044 ms at N = 15).
+solved by the ``daqp`` conic inside one compiled call (docs/journal/measurements.md, daqp for the Sec. 4.3 QP (W13): 0.044 ms at N = 15).
 """
 
 from __future__ import annotations
@@ -101,7 +101,7 @@ def linear_model(kappa, u_R, Ts: float):
 def condense(As: Sequence, B):
     """Condensed prediction (4.31): X = G x_e(k) + S U.
 
-    ``alpha(k1, k0) = A(k1-1) ... A(k0)`` and ``G in R^{nN x n}`` (docs/reference/ambiguities.md, A5);
+    ``alpha(k1, k0) = A(k1-1) ... A(k0)`` and ``G in R^{nN x n}`` (docs/reference/ambiguities.md, transition products (A5));
     ``S_ij = alpha(k+i, k+j) B(k+j-1)`` for j <= i. Works on numpy arrays or CasADi
     symbols (``As`` is the list A(k), ..., A(k+N-1)).
     """
@@ -133,7 +133,7 @@ def profile_speed(kappa, u_R: float, u_max: float, mu: float, g: float, omega_b=
     """Forward-speed profile (4.25)-(4.27) at curvature kappa.
 
     u = min(u_max, u_d, sqrt(mu g / |kappa|)) with u_d = min(u_R, r(omega_b)) (4.25),
-    docs/reference/ambiguities.md, A7; r is the model's :meth:`~copath.models.OmniModel.max_speed` (default:
+    docs/reference/ambiguities.md, min(u_R, (4.18)) (A7); r is the model's :meth:`~copath.models.OmniModel.max_speed` (default:
     the published robot). With ``heading = "tangent"`` the body turns with the path,
     omega_b = kappa u, and u_d = min(u_R, :meth:`~copath.models.OmniModel.max_tangent_speed`).
     """
@@ -290,7 +290,7 @@ class LTVConfig:
 
     horizon: int = 3
     """Prediction horizon N (E4.3: 3; recommended 3-5). N >= 2: with N = 1 the input
-    reaches y_e only one step later (docs/journal/measurements.md, M14)."""
+    reaches y_e only one step later (docs/journal/measurements.md, closed-loop observations from the prototypes (W14))."""
     Q: tuple[float, float, float, float] = (300.0, 300.0, 7.0, 70.0)
     """Weights on (x_e, y_e, alpha_e, theta_e) (E4.3)."""
     R: tuple[float, float, float] = (1.0, 0.001, 3.0)
@@ -311,7 +311,7 @@ class LTVConfig:
     """Fixed desired heading [rad] (E4.3: 0)."""
     phi_max: float = 10.0
     """Bound on the motion-direction curvature |Phi| [1/m] for u_2
-    (docs/reference/ambiguities.md, A31; not given in the text, chosen loose)."""
+    (docs/reference/ambiguities.md, no bound on the second virtual input (A31); not given in the text, chosen loose)."""
     qp_solver: str = "daqp"
     """QP solver (daqp, qrqp, osqp, qpoases)."""
     jit: bool = True
@@ -362,7 +362,7 @@ class LTVController:
         return self.direction.s
 
     def _bounds(self, u: np.ndarray, kappa: np.ndarray, alpha_e: float, omega_b: np.ndarray):
-        """Bounds (4.34)-(4.35) on U, rewritten on the decision variables (docs/reference/ambiguities.md, A6)."""
+        """Bounds (4.34)-(4.35) on U, rewritten on the decision variables (docs/reference/ambiguities.md, bounds on omega and s-dot (A6))."""
         cfg, N = self.cfg, self.cfg.horizon
         lb, ub = np.empty((N, 3)), np.empty((N, 3))
         ca_ = math.cos(alpha_e)
@@ -399,7 +399,7 @@ class LTVController:
         u1, u2, u3 = sol.U[0]
         uR = float(u_j[0])
         kr = float(geo[3, 0])
-        # command recovery from U*(0) (docs/reference/controllers-notes.md, N2)
+        # command recovery from U*(0) (docs/reference/controllers-notes.md, LTV-MPC commands (N2))
         sdot = min(max(uR * math.cos(xe[2]) - u1, 0.0), cfg.u_max)
         Phi = (u2 + kr * sdot) / uR
         omega = u3 + float(omega_b[0])

@@ -10,12 +10,12 @@ Two problems, each built once and solved every control period with :mod:`copath.
   reference given as arrays over the horizon (x_r, y_r, theta_r, u_r, omega_r per step).
 
 Decision variables are the three wheel rim speeds (plus s-dot for path following), so
-the wheel limit |qdot_i| <= qdot_max of (3.2) is an exact box (docs/journal/measurements.md, M12). The body
+the wheel limit |qdot_i| <= qdot_max of (3.2) is an exact box (docs/journal/measurements.md, what made the omni NMPC fast (W12)). The body
 velocities are (u, v, omega) = M^-1 qdot. The dissertation's inputs (s-dot, alpha_e,
 omega) with a fixed u_R are recovered as a special case: the path-frame velocity is
 V = R(theta - theta_p) [u, v] = u_R [cos alpha_e, sin alpha_e]. Because |V| is now free,
 a speed residual sqrt(w_speed) (|V|^2 - u_R^2) / (2 u_R) (~ |V| - u_R) keeps the speed at
-u_R (docs/reference/controllers-notes.md, N1).
+u_R (docs/reference/controllers-notes.md, omni NMPC wheel speeds as inputs (N1)).
 
 The builders ``build_path_following`` and ``build_trajectory_tracking`` wrap them as
 controllers (contract: :mod:`copath.control`); the leader-following NMPC of
@@ -106,7 +106,7 @@ def pf_error_dynamics(xe, body, sdot, kappa):
 
 
 def pf_virtual_inputs(xe, body, sdot, omega_d):
-    """Virtual inputs u_e of (4.5) with u_3 = omega - omega_d (docs/reference/ambiguities.md, A1)."""
+    """Virtual inputs u_e of (4.5) with u_3 = omega - omega_d (docs/reference/ambiguities.md, sign of the third virtual input (A1))."""
     Vx, Vy = _path_frame_velocity(xe[2], body[0], body[1])
     return ca.vertcat(-sdot + Vx, Vy, body[2] - omega_d)
 
@@ -131,14 +131,14 @@ def tt_error_dynamics(xe, body, u_d, omega_d):
 
 def tt_terminal_law(xe, u_d, omega_d, gains, cos=ca.cos, sin=ca.sin) -> tuple:
     """Body velocities (u, v, omega) the terminal law asks at tracking errors ``xe``
-    (docs/reference/derivations.md, D15): u_d cos(e_theta) + a e_x, u_d sin(e_theta) + b e_y,
+    (docs/reference/derivations.md, terminal-law commands of tracking (D15)): u_d cos(e_theta) + a e_x, u_d sin(e_theta) + b e_y,
     omega_d + g e_theta. Symbolic with CasADi's ``cos``/``sin``, numeric with ``math``'s."""
     a, b, g = gains
     return (u_d * cos(xe[2]) + a * xe[0], u_d * sin(xe[2]) + b * xe[1], omega_d + g * xe[2])
 
 
 def tt_virtual_inputs(xe, body, u_d, omega_d):
-    """Virtual inputs of (4.12)-(4.13), rows corrected per docs/reference/ambiguities.md, A3."""
+    """Virtual inputs of (4.12)-(4.13), rows corrected per docs/reference/ambiguities.md, first rows of the tracking inputs (A3)."""
     return ca.vertcat(u_d * ca.cos(xe[2]) - body[0], u_d * ca.sin(xe[2]) - body[1], omega_d - body[2])
 
 
@@ -146,7 +146,7 @@ def gain_condition_margins(Q, R, gains, P=None) -> np.ndarray:
     """Left sides of (4.10): p_ii k_i - q_ii - k_i^2 r_ii (P = I gives (4.10) exactly).
 
     The stability condition (4.9) holds for every terminal state when all are >= 0
-    (the drift matrix of (4.4) is skew-symmetric, docs/reference/derivations.md, D7).
+    (the drift matrix of (4.4) is skew-symmetric, docs/reference/derivations.md, terminal gains (D7)).
     """
     Q, R, k = (np.asarray(a, float).reshape(3) for a in (Q, R, gains))
     P = np.ones(3) if P is None else np.asarray(P, float).reshape(3)
@@ -257,7 +257,7 @@ class OmniPathFollowingNMPC:
 
         # stage parameters p = (kappa_bar, dkappa_bar, s_bar, u_R, theta_off):
         # kappa(s) ~ kappa_bar + dkappa_bar (s - s_bar), the curvature linearised about
-        # the warm-start prediction s_bar (docs/journal/measurements.md, M12);
+        # the warm-start prediction s_bar (docs/journal/measurements.md, what made the omni NMPC fast (W12));
         # theta_off = theta_p(s_bar) - theta_b for a fixed desired heading.
         def kappa(x, p):
             return p[0] + p[1] * (x[3] - p[2])
@@ -288,7 +288,7 @@ class OmniPathFollowingNMPC:
 
         def terminal_region(x, u, p):
             # (4.11) with J evaluated at the heading relative to the path frame
-            # (docs/reference/ambiguities.md, A2) and s-dot_T = the last planned s-dot.
+            # (docs/reference/ambiguities.md, angle in the terminal wheel map (A2)) and s-dot_T = the last planned s-dot.
             sdT = u[3]
             k = kappa(x, p)
             omega_dT = k * sdT if tangent else 0.0
@@ -399,7 +399,7 @@ class OmniTrackingNMPC:
     omega_r) at t, t + delta, ..., t + N delta.
 
     ``contractive_terminal``: from a state outside the terminal region (the terminal law
-    (4.8) of (4.12) would ask a wheel for more than qdot_max, the bound of (4.11); D15 of
+    (4.8) of (4.12) would ask a wheel for more than qdot_max, the bound of (4.11); terminal-law commands of tracking (D15) of
     docs/reference/derivations.md), the terminal state may ask the terminal law for no more than
     the current state does, and for qdot_max once it is inside. A robot far from its
     reference cannot reach the region within the horizon (Sec. 2.2.2: the domain of
@@ -458,7 +458,7 @@ class OmniTrackingNMPC:
             return weighted(errors(x, p), 0.5 * self.P)
 
         def terminal_region(x, u, p):
-            # terminal-law commands (docs/reference/derivations.md, D15) must respect the wheel limit
+            # terminal-law commands (docs/reference/derivations.md, terminal-law commands of tracking (D15)) must respect the wheel limit
             return ca.mtimes(M, ca.vertcat(*tt_terminal_law(errors(x, p), p[3], p[4], (a, b, g))))
 
         ocp = OCP(
@@ -530,7 +530,7 @@ class EightTrajectory:
 
     ``sample(t)`` returns (n, 5) rows (x, y, theta, u, omega): theta = atan2(ydot, xdot),
     u = |pdot| (0.49-1.20 m/s for the published values), omega = (xdot yddot - ydot
-    xddot) / |pdot|^2 (docs/reference/derivations.md, D14).
+    xddot) / |pdot|^2 (docs/reference/derivations.md, reference of the eight curve (D14)).
     """
 
     ax: float = 1.8

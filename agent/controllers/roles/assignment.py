@@ -7,7 +7,7 @@
 - :func:`nearest_position`: the loser of a negotiation takes the nearest position of
   its available set (Algorithm 6.2, lines 6 and 11).
 - :class:`RoleBook`: one robot's view J^a_i / J^t_i of the positions, merged with the
-  neighbours' taken sets every step (docs/reference/ambiguities.md, A24: line 2 unites the neighbours'
+  neighbours' taken sets every step (docs/reference/ambiguities.md, sets united in Algorithm 6.2 (A24): line 2 unites the neighbours'
   *taken* sets), and the pairwise negotiation in which the robot with the higher index
   decides, ties going to it (line 5, d_i <= d_k).
 
@@ -120,7 +120,7 @@ class RoleBook:
     conflicts_initiated: int = 0
     released: set[int] = field(default_factory=set)
     """Positions released from J^t_i because the robot that claimed them is lost
-    (docs/reference/ambiguities.md, A38): merges of the neighbours' taken sets skip them."""
+    (docs/reference/ambiguities.md, robot lost in role assignment (A38)): merges of the neighbours' taken sets skip them."""
 
     @property
     def available(self) -> list[int]:
@@ -134,14 +134,14 @@ class RoleBook:
             self.taken.add(self.position)
 
     def merge(self, taken_sets: Iterable[Iterable[int]], claims: Iterable[int] = ()) -> None:
-        """Algorithm 6.2 lines 1-2 with docs/reference/ambiguities.md, A24: J^t_i <- J^t_i U (U_j J^t_j)."""
+        """Algorithm 6.2 lines 1-2 with docs/reference/ambiguities.md, sets united in Algorithm 6.2 (A24): J^t_i <- J^t_i U (U_j J^t_j)."""
         skip = self.released
         for ts in taken_sets:
             self.taken.update(int(k) for k in ts if 0 <= int(k) < self.n_positions and int(k) not in skip)
         self.taken.update(int(k) for k in claims if 0 <= int(k) < self.n_positions)
 
     def release(self, positions: Iterable[int]) -> None:
-        """Release the positions of lost robots (docs/reference/ambiguities.md, A38): they leave
+        """Release the positions of lost robots (docs/reference/ambiguities.md, robot lost in role assignment (A38)): they leave
         J^t_i, and later merges of taken sets skip them until :meth:`release` is called
         again without them (a live robot's own claim always counts)."""
         self.released = {int(k) for k in positions if 0 <= int(k) < self.n_positions and int(k) != self.position}

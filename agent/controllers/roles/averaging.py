@@ -3,7 +3,7 @@
 - :func:`metropolis_weights` / :func:`metropolis_step`: the synchronous Metropolis
   iteration x_i <- x_i + sum_j (x_j - x_i) / (1 + max(|N_i|, |N_j|)) that reaches the
   exact average on any connected undirected graph without knowing N
-  (docs/reference/ambiguities.md, A21: (2.21) with its 1/|N_i| weights conserves the degree-weighted sum, not
+  (docs/reference/ambiguities.md, average consensus with 1/|N_i| (A21): (2.21) with its 1/|N_i| weights conserves the degree-weighted sum, not
   the plain average).
 - :class:`AverageConsensus`: the same iteration run by one robot over messages, in a
   mass-conserving edge-flow form that keeps the exact average under message delay,
@@ -32,7 +32,7 @@ __all__ = [
 
 
 def metropolis_weight(deg_i: int, deg_j: int) -> float:
-    """Metropolis-Hastings edge weight 1 / (1 + max(|N_i|, |N_j|)) (docs/reference/ambiguities.md, A21)."""
+    """Metropolis-Hastings edge weight 1 / (1 + max(|N_i|, |N_j|)) (docs/reference/ambiguities.md, average consensus with 1/|N_i| (A21))."""
     return 1.0 / (1.0 + max(int(deg_i), int(deg_j)))
 
 
@@ -101,7 +101,7 @@ class AverageConsensus:
     once messages take three control periods or more (checked on a 10-robot chain).
 
     Synchronously and without loss the two halves add up to the Metropolis step
-    x_i <- x_i + sum_j w_ij (x_j - x_i) (docs/reference/ambiguities.md, A21). The flows are state, not
+    x_i <- x_i + sum_j w_ij (x_j - x_i) (docs/reference/ambiguities.md, average consensus with 1/|N_i| (A21)). The flows are state, not
     increments, so a lost or late message only delays a flow; once both ends have
     heard each other's latest value sum_i x_i = sum_i v_i holds exactly, whatever the
     delays were. A neighbour that leaves keeps its (frozen) flows in the sum and a new
@@ -196,7 +196,7 @@ class PIConsensus:
     unstable once dt * lambda_max(L) > 2 (dense graphs at dt = 0.1 s), so the edges are
     weighted with the Metropolis weights (symmetric, lambda_max(L) < 2) and scaled by
     the gains k_P and k_I [1/s]; with k_P dt <= 1 the step is stable for any graph.
-    Reset at a task switch (docs/reference/ambiguities.md, A26): w = z = 1, eta = 0.
+    Reset at a task switch (docs/reference/ambiguities.md, reset at a task switch (A26)): w = z = 1, eta = 0.
 
     Under communication delay the neighbours' z_j, eta_j are old; fed as they are, the
     coupling -k_P L z pulls every z_i back towards the team's past and the team's decay
@@ -219,7 +219,7 @@ class PIConsensus:
     """eta-dot of the last step."""
 
     def reset(self, w: float = 1.0) -> None:
-        """Start a new task: z = w, eta = 0 (docs/reference/ambiguities.md, A26)."""
+        """Start a new task: z = w, eta = 0 (docs/reference/ambiguities.md, reset at a task switch (A26))."""
         self.z = float(w)
         self.eta = 0.0
         self.zdot = self.etadot = 0.0

@@ -19,7 +19,7 @@ class RolesConfig:
 
     handles_cut_off: ClassVar[bool] = True
     """A robot cut off from every other is handled by the controller (docs/reference/ambiguities.md,
-    A38: held still, or driving on to a position kept for it within ``R_max``), not by the
+    robot lost in role assignment (A38): held still, or driving on to a position kept for it within ``R_max``), not by the
     runtime's hold; the others' safety filters keep it as any robot gone quiet before that
     rule (forgotten after ``safety.max_age_s``): a static disc covering ``R_max`` more
     blocked the positions next to it (E6.3: the circle was never completed)."""

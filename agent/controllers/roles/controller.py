@@ -31,7 +31,7 @@ knows N. A robot that hears a neighbour already working on a later task follows 
 A robot in ``Observation.lost`` leaves the graph, the consensus and the relayed
 assignment problem at once; the position it claimed is released (a tombstone that later
 merges respect, lifted when it is heard claiming again) and a robot without a position
-takes it (docs/reference/ambiguities.md, A38). A robot that has lost every robot it knew cannot tell
+takes it (docs/reference/ambiguities.md, robot lost in role assignment (A38)). A robot that has lost every robot it knew cannot tell
 its own silent radio from their loss and applies the same rule to itself: unless it was
 within R_max of its position when it was last heard, its position has been released, so
 it holds still, a stationary obstacle like a dead robot, until it hears one again.
@@ -71,7 +71,7 @@ logger = logging.getLogger(__name__)
 
 
 CLAIMS_EVERY = 10
-"""The relayed claims table (docs/reference/ambiguities.md, A38) goes in every 10th ``role_state``
+"""The relayed claims table (docs/reference/ambiguities.md, robot lost in role assignment (A38)) goes in every 10th ``role_state``
 (1 s at 10 Hz) while no robot is lost: a sender's own claim travels first-hand in every
 message (``claim``, ``d``, its position), and the table, 0.5 kB for 16 robots, doubled the
 cost of decoding and validating each message (36 -> 73 us) for news that is only used
@@ -106,7 +106,7 @@ class RolesController:
         self.peers = PeerTable(self.cfg.neighbour_timeout_s)
         self.team = frozenset(ctx.robots) - {ctx.name}
         """The other robots of the scenario: used only to tell that this robot is cut off
-        from all of them (A38), never by the algorithm, which does not know N."""
+        from all of them (robot lost in role assignment, A38), never by the algorithm, which does not know N."""
         self.tasks = TaskSequence(self.cfg)
         self.agreement: Agreement | None = None
         """Phase 1 of the current task (None when the placement is kept across tasks)."""
@@ -121,7 +121,7 @@ class RolesController:
 
     # ------------------------------------------------------------------ tasks
     def _enter_task(self, k: int, p: np.ndarray, t: float) -> None:
-        """Start formation k with fresh phase objects (docs/reference/ambiguities.md, A26: (6.16) is reset)."""
+        """Start formation k with fresh phase objects (docs/reference/ambiguities.md, reset at a task switch (A26): (6.16) is reset)."""
         if self.roles is not None:
             self.tasks.conflicts_total += self.roles.book.conflicts_initiated
         self.tasks.begin(k, t)
@@ -139,7 +139,7 @@ class RolesController:
 
     # ------------------------------------------------------------------ phase 1
     def _adopt(self, centroid: np.ndarray, rotation: float, p: np.ndarray) -> None:
-        """Place the formation (docs/reference/ambiguities.md, A22); the initial choice follows in
+        """Place the formation (docs/reference/ambiguities.md, rotation direction and order of translation (A22)); the initial choice follows in
         :meth:`_choose`."""
         self.tasks.transform = (np.asarray(centroid, dtype=float), float(rotation))
         self.roles.place(transform_targets(self.templates[self.tasks.task], centroid, rotation))
@@ -246,7 +246,7 @@ class RolesController:
         waiting = False
         if roles.phase in (ASSIGNED, UNASSIGNED):
             waiting = self._negotiate(same, p)
-        # cut off from every robot it knew (A38): it cannot tell which positions are free,
+        # cut off from every robot it knew (robot lost in role assignment, A38): it cannot tell which positions are free,
         # and the others have released its own unless they last heard it within R_max of
         # it; then it holds still until it hears one again
         cut_off = self.peers.cut_off(self.team)
@@ -295,7 +295,7 @@ class RolesController:
             "gone": {m: float(s) for m, s in sorted(roles.gone.items())},
             "park": [float(c) for c in roles.park] if roles.park is not None else [],
         }
-        # the relayed claims table (A38) changes slowly and is only acted on after a loss: it
+        # the relayed claims table (robot lost in role assignment, A38) changes slowly and is only acted on after a loss: it
         # goes in every CLAIMS_EVERY-th message, and in every one while a robot is lost
         if roles.gone or self._sent % CLAIMS_EVERY == 0:
             payload["claims"] = roles.claims_payload(self._t, pose[:2], self.cfg.R_max)

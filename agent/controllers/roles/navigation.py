@@ -4,8 +4,8 @@
   unicycle (3.3): v = gamma tanh(e) cos(alpha),
   omega = k_c alpha + gamma tanh(e)/e sin(alpha) cos(alpha).
 - :func:`repulsive_shift`: the potential field (6.12)-(6.15) that moves the target away
-  from nearby robots: g_new = g + sum_o F(R_o) (p - p_o)/R_o (docs/reference/derivations.md, D9;
-  docs/reference/ambiguities.md, A25: displacements of several obstacles are summed), with the magnitude
+  from nearby robots: g_new = g + sum_o F(R_o) (p - p_o)/R_o (docs/reference/derivations.md, repulsive target shift (D9);
+  docs/reference/ambiguities.md, several obstacles in (6.12)-(6.15) (A25): displacements of several obstacles are summed), with the magnitude
   clipped and a sideways component that breaks the collinear standstill.
 - :func:`parking_point`: where a robot without a role waits: just outside the formation
   on its own bearing from the formation centre, so it keeps in range of the formation
@@ -35,7 +35,7 @@ class NavigationGains:
     R_max: float = 0.4
     """Influence distance R_max of the potential field [m]."""
     F_max: float = 5.0
-    """Clip of the repulsive displacement F [m] (F grows like 1/R^3, docs/reference/derivations.md, D9); only a
+    """Clip of the repulsive displacement F [m] (F grows like 1/R^3, docs/reference/derivations.md, repulsive target shift (D9)); only a
     numerical guard: (6.11) bounds the speed by gamma whatever the target distance."""
     side: float = 0.5
     """Sideways share of F when the obstacle lies ahead on the way to the goal."""
@@ -104,7 +104,7 @@ def repulsive_shift(p, goal, obstacles, gains: NavigationGains) -> np.ndarray:
     -----
     (6.13)-(6.14) take |F cos(beta)| and |F sin(beta)| with the signs of (x - x_o) and
     (y - y_o), i.e. F along (p - p_o)/R with beta = atan2(y - y_o, x - x_o) (docs/reference/ambiguities.md,
-    A25); (6.15) adds the attraction (x_d - x), so x_n = x_d + F (p - p_o)/R.
+    several obstacles in (6.12)-(6.15) (A25)); (6.15) adds the attraction (x_d - x), so x_n = x_d + F (p - p_o)/R.
     """
     p = np.asarray(p, dtype=float).reshape(2)
     g = np.asarray(goal, dtype=float).reshape(2)

@@ -97,7 +97,7 @@ class PeerTable:
 
     def ingest(self, inbox, t: float, lost: frozenset[str] = frozenset()) -> None:
         """Take in one step's messages (newest per neighbour by stamp); ``lost`` are the
-        robots known to be gone (docs/reference/ambiguities.md, A38)."""
+        robots known to be gone (docs/reference/ambiguities.md, robot lost in role assignment (A38))."""
         self._fresh = None
         self.lost = frozenset(lost)
         for got in self.inbox.update(inbox, t):
@@ -125,11 +125,11 @@ class PeerTable:
 
     def wrecks(self) -> list[np.ndarray]:
         """Last heard positions of the lost robots: a robot that went quiet or died is
-        still somewhere, so it stays an obstacle where it was last heard (A38)."""
+        still somewhere, so it stays an obstacle where it was last heard (robot lost in role assignment, A38)."""
         return [self.peers[n].position for n in sorted(self.lost) if n in self.peers]
 
     def cut_off(self, team: frozenset[str]) -> bool:
-        """Every other robot of the team is lost (A38): most likely this robot's own radio
+        """Every other robot of the team is lost (robot lost in role assignment, A38): most likely this robot's own radio
         has gone quiet, not all of theirs, and the others have lost it in turn. (Its
         neighbours alone would not do: in a range-limited graph a robot may have heard only
         the one that was lost.)"""
@@ -179,7 +179,7 @@ class Agreement:
 
     def step(self, same: dict[str, Peer], t: float | None = None, lost: frozenset[str] = frozenset()) -> np.ndarray:
         """One consensus iteration over the neighbours' latest contributions; the estimate.
-        A robot in ``lost`` leaves at once instead of after the memory (A38)."""
+        A robot in ``lost`` leaves at once instead of after the memory (robot lost in role assignment, A38)."""
         self.heard.update(same)
         if t is not None:
             self.heard = {n: q for n, q in self.heard.items()
@@ -235,7 +235,7 @@ class Agreement:
 
 
 EN_ROUTE, ON_IT, WAITING = 0, 1, 2
-"""State of a robot in the claims table (A38): heading for its position (or still agreeing),
+"""State of a robot in the claims table (robot lost in role assignment, A38): heading for its position (or still agreeing),
 standing on it (within ``2 arrive_tol``), without a position."""
 
 
@@ -286,11 +286,11 @@ class Assignment:
         ``{name: [x, y]}`` (:meth:`relay`)."""
         self.known_changed = t
         self.claims: dict[str, tuple[int, float, int, float, float]] = {}
-        """Who claims what (A38): robot -> (claimed position or -1, stamp of the message that
+        """Who claims what (robot lost in role assignment, A38): robot -> (claimed position or -1, stamp of the message that
         said so, state :data:`EN_ROUTE` / :data:`ON_IT` / :data:`WAITING`, x, y), the newest
         per robot, heard directly or relayed by the neighbours (``claims``)."""
         self.gone: dict[str, float] = {}
-        """Tombstones (A38): lost robot -> stamp of its newest claim known when it was lost;
+        """Tombstones (robot lost in role assignment, A38): lost robot -> stamp of its newest claim known when it was lost;
         a claim of that robot stamped later lifts it (it was heard again)."""
         self._lost_seen: frozenset[str] = frozenset()
         self.near: tuple[int, float] | None = None
@@ -308,7 +308,7 @@ class Assignment:
         return self.book.position
 
     def place(self, targets: np.ndarray) -> None:
-        """The agreed target positions (ambiguity A22 of docs/reference/ambiguities.md for the transform)."""
+        """The agreed target positions (docs/reference/ambiguities.md, rotation direction and order of translation (A22), for the transform)."""
         self.targets = targets
         self.announce_targets = True
 
@@ -391,7 +391,7 @@ class Assignment:
         return {n: [x, y] for n, (x, y) in sorted(self.known.items())}
 
     def track_claims(self, same: dict[str, Peer], lost: frozenset[str], t: float, at_tol: float) -> None:
-        """Keep who claims which position and release the positions of lost robots (A38).
+        """Keep who claims which position and release the positions of lost robots (robot lost in role assignment, A38).
 
         Claims are merged newest-stamp-first from the neighbours' own claims and the
         tables they relay; tombstones from this robot's ``lost`` (when a robot enters it)
@@ -436,14 +436,14 @@ class Assignment:
             self.near = None
 
     def kept_while_lost(self, last_heard: float) -> bool:
-        """The others keep this robot's position after losing it (A38): it announced itself
+        """The others keep this robot's position after losing it (robot lost in role assignment, A38): it announced itself
         within ``R_max`` of it from before ``last_heard`` (the stamp of the newest message
         it heard, when its own last reached them) until now. The robot knows what it said,
         so it applies to itself the rule the others apply to it."""
         return self.near is not None and self.near[1] <= last_heard
 
     def claims_payload(self, t: float, p: np.ndarray, at_tol: float) -> dict[str, list]:
-        """The claims table for the message, own entry first-hand (A38)."""
+        """The claims table for the message, own entry first-hand (robot lost in role assignment, A38)."""
         out = {m: [c[0], c[1], c[2], c[3], c[4]] for m, c in sorted(self.claims.items())}
         state = (WAITING if self.phase == UNASSIGNED
                  else ON_IT if self.distance(p) <= at_tol else EN_ROUTE)
@@ -451,7 +451,7 @@ class Assignment:
         return out
 
     def take_released(self, p: np.ndarray, t: float, wait_s: float) -> int | None:
-        """A robot without a position takes a released one (A38): its own row of the
+        """A robot without a position takes a released one (robot lost in role assignment, A38): its own row of the
         Hungarian problem (6.7) over the live robots without a position in its claims
         table (relayed, so robots that do not hear each other solve the same problem) x
         J^a_i, once J^a_i has not changed for ``wait_s``. Only after a loss (no-loss runs
@@ -466,7 +466,7 @@ class Assignment:
         return local_hungarian(p, others, self.targets, avail)
 
     def merge(self, same: dict[str, Peer]) -> None:
-        """Unite the taken sets and claims the neighbours announced (ambiguity A24)."""
+        """Unite the taken sets and claims the neighbours announced (ambiguity sets united in Algorithm 6.2 (A24))."""
         self.book.merge((q.payload.get("taken") or () for q in same.values()),
                         (int(q.payload.get("claim", -1)) for q in same.values()))
 
@@ -602,7 +602,7 @@ class TaskSequence:
         return self.task >= 0
 
     def begin(self, k: int, t: float) -> None:
-        """Start formation k: reset (6.16) (ambiguity A26)."""
+        """Start formation k: reset (6.16) (ambiguity reset at a task switch (A26))."""
         self.task = k
         self.task_start = t
         self.done = False

@@ -3,7 +3,7 @@ Algorithm 6.1).
 
 The robots agree on the centroid x_bar of their positions and on the angle theta_f of
 their first principal axis; every robot then places template position k at (docs/reference/ambiguities.md,
-A22)::
+rotation direction and order of translation (A22))::
 
     g_k = x_bar + R_ccw(theta_f - theta_tmpl) (x^d_k - x_bar^d)
 
@@ -12,7 +12,7 @@ with theta_tmpl and x_bar^d the template's own principal-axis angle and centroid
 Algorithm 6.1 runs the power method (6.8) through average consensus:
 q(n) = AC(x_j (x_j . q(n-1))) / ||.||, with centred positions x_j. Because the average
 is linear and q(n-1) is common to all robots (a deterministic shared q(0), docs/reference/ambiguities.md,
-A23), AC(x_j x_j^T q) = AC(x_j x_j^T) q: one average consensus on the moment vector
+start vector and principal axis (A23)), AC(x_j x_j^T q) = AC(x_j x_j^T) q: one average consensus on the moment vector
 m_j = (x, y, x^2, x y, y^2) gives every robot the covariance C = E[x x^T] - x_bar x_bar^T,
 and the power iterations then need no further messages. :func:`principal_axis_ac`
 runs the literal nested form (an inner consensus per power step) on a known graph as
@@ -43,7 +43,7 @@ __all__ = [
 logger = logging.getLogger(__name__)
 
 Q0 = np.array([1.0, 0.3]) / math.hypot(1.0, 0.3)
-"""Shared deterministic initial vector q(0) of the power method (docs/reference/ambiguities.md, A23)."""
+"""Shared deterministic initial vector q(0) of the power method (docs/reference/ambiguities.md, start vector and principal axis (A23))."""
 
 
 def moment_vector(p) -> np.ndarray:
@@ -61,7 +61,7 @@ def covariance_from_moments(m) -> tuple[np.ndarray, np.ndarray]:
 
 
 def canonical_axis(q) -> np.ndarray:
-    """Fix the eigenvector's sign (docs/reference/ambiguities.md, A23): q_x > 0, or q_y > 0 when q_x ~ 0."""
+    """Fix the eigenvector's sign (docs/reference/ambiguities.md, start vector and principal axis (A23)): q_x > 0, or q_y > 0 when q_x ~ 0."""
     q = np.asarray(q, dtype=float)
     q = q / np.linalg.norm(q)
     if q[0] < -1e-9 or (abs(q[0]) <= 1e-9 and q[1] < 0):
@@ -100,7 +100,7 @@ def principal_axis(C, isotropy: float = 1.2) -> float | None:
         Fallback threshold: when lambda_1 < isotropy * lambda_2 the power method is
         ill-conditioned and the axis meaningless (robots on a circle, a square
         lattice), and None is returned; the caller then keeps the template's own
-        orientation (docs/reference/controllers-notes.md, N8).
+        orientation (docs/reference/controllers-notes.md, no principal axis for isotropic point sets (N8)).
     """
     C = np.asarray(C, dtype=float)
     lam = np.linalg.eigvalsh(C)  # ascending; only used for the conditioning test
@@ -148,7 +148,7 @@ def template_frame(template, isotropy: float = 1.2) -> tuple[np.ndarray, float |
 
 
 def transform_targets(template, centroid, rotation: float) -> np.ndarray:
-    """Targets g_k = x_bar + R_ccw(rotation) (x^d_k - x_bar^d) (docs/reference/ambiguities.md, A22).
+    """Targets g_k = x_bar + R_ccw(rotation) (x^d_k - x_bar^d) (docs/reference/ambiguities.md, rotation direction and order of translation (A22)).
 
     Parameters
     ----------

@@ -6,7 +6,7 @@ virtual vehicle, the speed error eta_e = v - v_d (4.39) and the path coordinate.
 Decision variables (s-dot, omega, a) per step, equivalent to u_e of (4.40); dynamics
 (4.38)-(4.41). Objective: sum of F (4.42) + terminal penalty V (4.43) + time penalty
 F_t (4.53) + obstacle cost F_obs (4.54). The terminal region (4.49) (with sin, docs/reference/ambiguities.md,
-A8) and the bounds (4.52) on the terminal-law commands (inverted per docs/reference/ambiguities.md, A9) are
+missing sine in the terminal region (A8)) and the bounds (4.52) on the terminal-law commands (inverted per docs/reference/ambiguities.md, terminal-law commands (A9)) are
 soft constraints. Gain conditions (4.48) are checked at build time.
 
 Modes (E4.4): ``path_following`` (K_t = 0, s-dot free), ``trajectory_tracking`` (the
@@ -56,7 +56,7 @@ logger = logging.getLogger(__name__)
 MODES = ("path_following", "trajectory_tracking", "combined")
 
 _SMOOTH_EPS = 1e-4
-"""epsilon of |theta| ~ sqrt(theta^2 + eps) in (4.54) (docs/reference/ambiguities.md, A11)."""
+"""epsilon of |theta| ~ sqrt(theta^2 + eps) in (4.54) (docs/reference/ambiguities.md, ray-cast obstacle cost (A11))."""
 
 
 # -- error model ---------------------------------------------------------------------
@@ -101,7 +101,7 @@ def uni_gain_condition_margins(Q, R, P, gains) -> np.ndarray:
 
 
 def terminal_law(xe, v_d, vdot_d, kappa, gains):
-    """Terminal-law commands, (4.50) inverted (docs/reference/ambiguities.md, A9): (s-dot^L, omega^L, a^L)."""
+    """Terminal-law commands, (4.50) inverted (docs/reference/ambiguities.md, terminal-law commands (A9)): (s-dot^L, omega^L, a^L)."""
     a_, b_, g_ = gains
     v = v_d + xe[3]
     sdot = a_ * xe[0] + v * ca.cos(xe[2])
@@ -265,7 +265,7 @@ class UnicycleNMPC:
             if terminal:
                 parts.append(weighted(x[:4], 0.5 * P))  # (4.43)
             if use_time:
-                # (4.53) in the frame of the time reference (docs/reference/ambiguities.md, A10):
+                # (4.53) in the frame of the time reference (docs/reference/ambiguities.md, frame of the time penalty (A10)):
                 # [longitudinal, lateral, heading, speed] differences
                 xr, yr, thr, vr = (p[ng + 3 * npts + i] for i in range(4))
                 px, py, th = _world_pose(x, p)
@@ -280,7 +280,7 @@ class UnicycleNMPC:
             _, _, _, k = _expand(x[4], p)
             v = p[6] + x[3]
             _, om_L, a_L = terminal_law(x[:4], p[6], p[7], k, self.gains)
-            # (4.49) with sin (docs/reference/ambiguities.md, A8): x^2 - y^2 >= 0 and y v sin(theta) <= 0;
+            # (4.49) with sin (docs/reference/ambiguities.md, missing sine in the terminal region (A8)): x^2 - y^2 >= 0 and y v sin(theta) <= 0;
             # (4.52) on the terminal-law commands
             return ca.vertcat(x[0] ** 2 - x[1] ** 2, x[1] * v * ca.sin(x[2]), om_L, a_L)
 
@@ -399,7 +399,7 @@ class UnicycleNMPCConfig(SolverFields):
     """Predict detected points with a velocity estimated from consecutive scans."""
     slack_weight: float = 1.0
     """Linear penalty of the soft terminal region (4.49)/(4.52) (chosen: of the order of
-    Q; the region is unreachable within T_p far from the path, docs/reference/ambiguities.md, A8)."""
+    Q; the region is unreachable within T_p far from the path, docs/reference/ambiguities.md, missing sine in the terminal region (A8))."""
     slack_weight_quadratic: float = 1.0
     """Quadratic penalty of the soft terminal region (chosen)."""
 

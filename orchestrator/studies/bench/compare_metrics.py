@@ -10,7 +10,7 @@ except the timing keys (wall time, solve and filter times, run id: they depend o
 machine, not on what the robots did). Numbers match when equal within ``--rtol``/``--atol``
 (default: equal to 1e-9 relative, for a change that reorders floating-point operations;
 ``--rtol 0 --atol 0`` asks for identity). Exit 1 and a list of the keys that differ
-otherwise. Used for docs/reference/performance.md (P15).
+otherwise. Used for docs/reference/performance.md (against IR-SIM, P15).
 """
 
 from __future__ import annotations

@@ -7,7 +7,7 @@ from the simulator's truth.
                                        [--set run.cut_off=drive ...] [--json]
 
 Per run: collisions and minimum separation over the whole run (the metrics' rule), the
-fleet's largest coordination error after settling over the live robots (docs/reference/metrics.md, M3),
+fleet's largest coordination error after settling over the live robots (docs/reference/metrics.md, formation error (M3)),
 or the tasks completed (Chapter 6), and each live robot's progress along its path as a share
 of its progress in the same run without the failure (``progress``; the goal of
 docs/reference/detours.md is >= 90 % for every live robot), with the detours they made.
@@ -59,7 +59,7 @@ settled, where the run is long enough)."""
 
 def progress(res, scen: Scenario) -> dict[str, float]:
     """How far each robot with a path truly got along it [m]: its path coordinate at the end
-    less at the start (docs/reference/metrics.md, M1), from the truth."""
+    less at the start (docs/reference/metrics.md, path coordinate of a true position (M1)), from the truth."""
     ser = truth_series(res.trace, scen)
     if ser is not None:
         S = ser.s

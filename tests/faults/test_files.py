@@ -16,7 +16,7 @@ from orchestrator.log.mcap import read_log
 from orchestrator.log.replay import log_info
 from tests.conftest import config
 from tests.faults.conftest import E55_LOG_RUN_ID
-from tests.integration.conftest import child_pids
+from orchestrator.testkit.processes import child_pids
 
 COMMANDS = ("info", "metrics", "plot", "replay")
 

@@ -13,26 +13,12 @@ import pytest
 
 from copath.wire.keys import Keys
 from copath.wire.messages import End, PeerEnvelope
-from copath.wire.session import SessionConfig, ZenohLink, free_port, loopback_endpoint
+from copath.wire.session import free_port, loopback_endpoint
 from orchestrator.log.mcap import read_log
-from tests.conftest import config
+from orchestrator.testkit.attacker import attacker, wait_for_truth
+from orchestrator.testkit.scenarios import config
 
 pytestmark = [pytest.mark.fleet, pytest.mark.timeout(240)]
-
-
-def _attacker(endpoint: str) -> ZenohLink:
-    # give up after 60 s instead of waiting for the router forever
-    return ZenohLink.open(SessionConfig(mode="client", connect=(endpoint,), extra=(("connect/timeout_ms", "60000"),)))
-
-
-def _wait_for_truth(link: ZenohLink, keys: Keys, ticks: int, proc, timeout_s: float = 150.0) -> None:
-    seen = []
-    link.subscribe_raw(keys.truth, lambda k, b: seen.append(1))
-    deadline = time.monotonic() + timeout_s
-    while len(seen) < ticks:
-        assert proc.poll() is None, proc.stderr.read().decode()[-3000:]
-        assert time.monotonic() < deadline, "the run did not start"
-        time.sleep(0.05)
 
 
 def test_forgeries_and_garbage_are_rejected_counted_and_survived(tmp_path, procs):
@@ -42,8 +28,8 @@ def test_forgeries_and_garbage_are_rejected_counted_and_survived(tmp_path, procs
     p = procs.start(["-m", "orchestrator", "run", str(config("e5.5-")), "--out", str(tmp_path), "--run-id", run_id,
                      "--duration", "40", "--listen", loopback_endpoint(port), "-q", "--no-plots",
                      "--no-secure"])  # an open bus: what the receivers do on their own
-    with _attacker(loopback_endpoint(port)) as bad:
-        _wait_for_truth(bad, keys, 20, p)
+    with attacker(loopback_endpoint(port)) as bad:
+        wait_for_truth(bad, keys, 20, p)
         nan_peer = PeerEnvelope("r2", 1, 0.5, "coord_state", [0.0, 0.0], {"s": 0.0, "sdot": 0.2, "s_d": 0.0}).to_dict()
         nan_peer["payload"]["s"] = math.nan
         nan_stamp = dict(nan_peer, stamp=math.nan, payload={"s": 0.0, "sdot": 0.2, "s_d": 0.0})

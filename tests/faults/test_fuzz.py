@@ -9,46 +9,15 @@ import json
 import random
 import time
 
-import msgpack
 import pytest
 
 from copath.wire.keys import Keys
-from copath.wire.messages import WIRE_VERSION, Command, End, Obs, PeerEnvelope, Start
+from copath.wire.messages import Command, Start
 from copath.wire.session import SessionConfig, ZenohLink, free_port, loopback_endpoint
-from tests.conftest import config
+from orchestrator.testkit.fuzz import fuzz_payloads
+from orchestrator.testkit.scenarios import config
 
 pytestmark = [pytest.mark.fleet, pytest.mark.timeout(300)]
-
-
-def _fuzz_payloads(rng: random.Random, n: int, victim: str, neighbour: str) -> list[bytes]:
-    """``n`` invalid records for ``victim``'s keys: none may pass the receiver's checks."""
-    coord = PeerEnvelope(neighbour, 1, 0.5, "coord_state", [0.0, 0.0], {"s": 0.1, "sdot": 0.2, "s_d": 0.0})
-    good = [coord.to_dict(), Obs(1, 0.1, [0.0, 0.0, 0.0]).to_dict(), End(1, 0.1, "x").to_dict()]
-    out = []
-    for i in range(n):
-        kind = i % 6
-        if kind == 0:  # random bytes
-            out.append(rng.randbytes(rng.randint(0, 300)))
-        elif kind == 1:  # a valid record cut short
-            data = coord.pack()
-            out.append(data[: rng.randint(0, len(data) - 1)])
-        elif kind == 2:  # oversized: a 200 kB string where a float belongs
-            d = coord.to_dict()
-            d["payload"] = {"s": "x" * 200_000, "sdot": 0.2, "s_d": 0.0}
-            out.append(msgpack.packb(d))
-        elif kind == 3:  # another wire version
-            d = dict(rng.choice(good))
-            d["v"] = rng.choice([0, WIRE_VERSION + 1, "1", None])
-            out.append(msgpack.packb(d))
-        elif kind == 4:  # well-formed forgery: somebody else's name
-            d = coord.to_dict()
-            d["sender"] = "intruder"
-            out.append(msgpack.packb(d))
-        else:  # well-formed forgery: a stamp from the far future, or not finite
-            d = coord.to_dict()
-            d["stamp"] = rng.choice([1e9, float("nan"), float("inf"), -1e9])
-            out.append(msgpack.packb(d))
-    return out
 
 
 def _run(tmp_path, procs, extra):
@@ -73,13 +42,13 @@ def test_fuzzing_an_open_fleet_crashes_nothing_and_every_reject_is_counted(tmp_p
         _wait_until_running(p, tmp_path / "run.mcap", time.monotonic() + 150)
         # r1 listens to its observation key, r2's broadcasts and direct messages, sim/start and sim/end
         targets = [keys.obs("r1"), keys.peer_broadcast("r2"), keys.peer_direct("r2", "r1"), keys.start, keys.end]
-        for i, data in enumerate(_fuzz_payloads(rng, 3000, "r1", "r2")):
+        for i, data in enumerate(fuzz_payloads(rng, 3000, "r1", "r2")):
             bad.publish_bytes(targets[i % len(targets)], data)
             sent += 1
             if i % 200 == 0:
                 time.sleep(0.01)
         # and the simulator's command keys
-        for data in _fuzz_payloads(rng, 300, "sim", "r2"):
+        for data in fuzz_payloads(rng, 300, "sim", "r2"):
             bad.publish_bytes(keys.cmd("r1"), data)
         time.sleep(0.5)
     assert p.wait(timeout=240) == 0, p.stderr.read().decode()[-3000:]
@@ -110,7 +79,7 @@ def test_fuzzing_a_secure_fleet_with_a_robots_credentials_reaches_nobody(tmp_pat
         _wait_until_running(p, tmp_path / "run.mcap", deadline)
         targets = [keys.obs("r1"), keys.peer_broadcast("r1"), keys.peer_direct("r3", "r1"), keys.start, keys.end,
                    keys.cmd("r1"), keys.truth]
-        payloads = _fuzz_payloads(rng, 3000, "r1", "r3")
+        payloads = fuzz_payloads(rng, 3000, "r1", "r3")
         payloads += [Command(5, 0.5, [2.0, 2.0], 0.0, {}).pack(), Start(0.0, 0.1, "lockstep").pack()]
         for i, data in enumerate(payloads):
             bad.publish_bytes(targets[i % len(targets)], data)

@@ -266,7 +266,7 @@ def test_a_restarted_leader_follows_the_new_one_in_a_fleet(tmp_path, procs):
     import time
 
     from orchestrator.log.mcap import read_log
-    from tests.integration.conftest import child_pids, cmdline
+    from orchestrator.testkit.processes import child_pids, cmdline
 
     p = procs.start(["-m", "orchestrator", "run", str(config("e5.1-")), "--out", str(tmp_path), "--run-id", "elect",
                      "--duration", "90", "-q", "--no-plots", "--set", 'run.on_robot_failure="restart"',

@@ -20,33 +20,9 @@ import json
 import pytest
 
 from orchestrator.log.mcap import read_log
-from tests.conftest import config
-
-from .hosts import ADDR_A, ADDR_B, endpoint, popen, start_router, stop_all, two_hosts, wait_for_file, why_not
+from orchestrator.testkit.hosts import DROP, run_across_hosts, stop_all, two_hosts, why_not
 
 pytestmark = [pytest.mark.fleet, pytest.mark.timeout(300)]
-
-DROP = 0.3
-LEASE_MS = 10000
-
-
-def run_across_hosts(tmp_path, procs, hosts, run_id: str, duration_s: float = 40.0):
-    """E5.5 with the run's router, recorder, simulator, r1 and r3 on host A and r2 on host B
-    behind B's own router (connected to A's). Returns (orchestrator, r2) once both exited."""
-    run = popen(hosts, hosts.a, ["-m", "orchestrator", "run", str(config("e5.5-")), "--out", str(tmp_path),
-                                 "--run-id", run_id, "--duration", str(duration_s), "--listen", endpoint(ADDR_A),
-                                 "--external", "r2", "-q", "--no-plots", "--no-secure"])  # a site router logs in as nobody (README)
-    procs.started.append(run)
-    procs.started.append(start_router(hosts, hosts.b, endpoint(ADDR_B), endpoint(ADDR_A), lease_ms=LEASE_MS))
-    wait_for_file(tmp_path / "scenario.json", run)
-    r2_log = tmp_path / "logs" / "r2.log"  # the run's own logs are beside it
-    r2 = popen(hosts, hosts.b, ["-m", "agent", "--run-id", run_id, "--robot", "r2",
-                                "--config", str(tmp_path / "scenario.json"), "--connect", endpoint(ADDR_B)], log=r2_log)
-    procs.started.append(r2)
-    assert run.wait(timeout=240) == 0, run.stderr.read().decode()[-3000:] + r2_log.read_text()[-2000:]
-    assert r2.wait(timeout=30) == 0, r2_log.read_text()[-2000:]
-    return run, r2
-
 
 def assert_every_robot_and_no_loss(tmp_path, run_id: str, ticks: int) -> dict:
     m = json.loads((tmp_path / "metrics.json").read_text())

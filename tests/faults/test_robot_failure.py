@@ -13,8 +13,8 @@ import time
 import pytest
 
 from orchestrator.log.mcap import read_log
-from tests.conftest import config
-from tests.integration.conftest import child_pids, cmdline
+from orchestrator.testkit.processes import unfreeze, victim
+from orchestrator.testkit.scenarios import config
 
 pytestmark = [pytest.mark.fleet, pytest.mark.timeout(300)]
 
@@ -22,27 +22,6 @@ pytestmark = [pytest.mark.fleet, pytest.mark.timeout(300)]
 def _start(procs, out, policy, duration="200"):
     return procs.start(["-m", "orchestrator", "run", str(config("e5.5-")), "--out", str(out), "--run-id", "fail",
                         "--duration", duration, "-q", "--no-plots", "--set", f'run.on_robot_failure="{policy}"'])
-
-
-def _victim(p, out, name="r3", under_way_bytes=300_000) -> int:
-    mcap = out / "run.mcap"
-    deadline = time.monotonic() + 150
-    while not (mcap.is_file() and mcap.stat().st_size > under_way_bytes):  # the run is under way
-        assert p.poll() is None and time.monotonic() < deadline, p.stderr.read().decode()[-2000:]
-        time.sleep(0.05)
-    pids = [pid for pid in child_pids(p.pid) if "agent" in cmdline(pid) and name in cmdline(pid)]
-    assert len(pids) == 1
-    return pids[0]
-
-
-def _unfreeze(pid: int, sig: int) -> None:
-    """After a fault ``sig`` sent to ``pid``: a frozen (SIGSTOP) process is killed, so nothing
-    of the test outlives it."""
-    if sig == signal.SIGSTOP:
-        try:
-            os.kill(pid, signal.SIGKILL)
-        except ProcessLookupError:
-            pass
 
 
 def _events(out, what):
@@ -53,13 +32,13 @@ def _events(out, what):
 @pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGSTOP], ids=["killed", "frozen"])
 def test_continue_goes_on_without_the_lost_robot(tmp_path, procs, sig):
     p = _start(procs, tmp_path, "continue")
-    pid = _victim(p, tmp_path)
+    pid = victim(p, tmp_path)
     t_fault = time.time_ns()
     os.kill(pid, sig)
     try:
         assert p.wait(timeout=240) == 0, p.stderr.read().decode()[-3000:]
     finally:
-        _unfreeze(pid, sig)
+        unfreeze(pid, sig)
     m = json.loads((tmp_path / "metrics.json").read_text())
     assert m["ok"]
     lost = _events(tmp_path, "robot_lost")
@@ -79,7 +58,7 @@ def test_continue_goes_on_without_the_lost_robot(tmp_path, procs, sig):
 
 def test_restart_brings_the_robot_back(tmp_path, procs):
     p = _start(procs, tmp_path, "restart")
-    os.kill(_victim(p, tmp_path), signal.SIGKILL)
+    os.kill(victim(p, tmp_path), signal.SIGKILL)
     assert p.wait(timeout=240) == 0, p.stderr.read().decode()[-3000:]
     m = json.loads((tmp_path / "metrics.json").read_text())
     assert m["ok"]
@@ -96,7 +75,7 @@ def test_a_robot_restarted_too_late_to_rejoin_does_not_fail_the_run(tmp_path, pr
     # is up, so it waits for a start that never comes; the orchestrator stops it, and the
     # run ends as it would have without the restart
     p = _start(procs, tmp_path, "restart", duration="40")
-    os.kill(_victim(p, tmp_path, under_way_bytes=430_000), signal.SIGKILL)  # near the end (about 520 kB)
+    os.kill(victim(p, tmp_path, under_way_bytes=430_000), signal.SIGKILL)  # near the end (about 520 kB)
     assert p.wait(timeout=240) == 0, p.stderr.read().decode()[-3000:]
     m = json.loads((tmp_path / "metrics.json").read_text())
     assert m["ok"] and m["robots"]["r3"]["restarts"] in (0, 1)

@@ -12,17 +12,13 @@ import zenoh
 
 from copath.wire.keys import Keys
 from copath.wire.messages import Command, End, Obs, PeerEnvelope
-from copath.wire.session import SessionConfig, ZenohLink, free_port, loopback_endpoint
+from copath.wire.session import SessionConfig, free_port, loopback_endpoint
 from orchestrator.log.mcap import read_log
 from orchestrator.run.security import acl_config
-from tests.conftest import config
+from orchestrator.testkit.attacker import session as _session
+from orchestrator.testkit.scenarios import config
 
 pytestmark = [pytest.mark.fleet, pytest.mark.timeout(300)]
-
-
-def _session(endpoint: str, config_file=None, timeout_ms: int = 3000) -> ZenohLink:
-    return ZenohLink.open(SessionConfig(mode="client", connect=(endpoint,), config_file=config_file,
-                                        extra=(("connect/timeout_ms", str(timeout_ms)),)))
 
 
 def test_acl_grants_each_robot_only_its_own_keys():

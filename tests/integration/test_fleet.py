@@ -19,7 +19,7 @@ from orchestrator.log.mcap import read_log
 from orchestrator.log.replay import log_info
 from tests.conftest import config
 
-from .conftest import child_pids, cmdline
+from orchestrator.testkit.processes import child_pids, cmdline
 
 pytestmark = [pytest.mark.fleet, pytest.mark.timeout(180)]
 

@@ -15,7 +15,7 @@ from orchestrator.api import load
 from orchestrator.run.fleet import RunOptions, run_fleet
 from tests.conftest import config
 
-from .conftest import child_pids, cmdline
+from orchestrator.testkit.processes import child_pids, cmdline
 
 pytestmark = [pytest.mark.fleet, pytest.mark.timeout(300)]
 

@@ -31,3 +31,51 @@ def test_package_does_not_import_the_programs(package):
     assert files
     bad = {str(f.relative_to(REPO)): sorted(_imports(f) & RULES[package]) for f in files}
     assert not {f: m for f, m in bad.items() if m}
+
+
+def _modules(path: pathlib.Path) -> set[str]:
+    """Every module ``path`` imports, by its full dotted name (relative imports resolved
+    against the file's package), wherever the import stands (a function body too)."""
+    package = list(path.relative_to(REPO).with_suffix("").parts[:-1])
+    out = set()
+    for node in ast.walk(ast.parse(path.read_text(), filename=str(path))):
+        if isinstance(node, ast.Import):
+            out.update(a.name for a in node.names)
+        elif isinstance(node, ast.ImportFrom):
+            base = package[: len(package) - node.level + 1] if node.level else []
+            mod = ".".join([*base, *([node.module] if node.module else [])])
+            out.add(mod)
+            out.update(f"{mod}.{a.name}" for a in node.names)  # ``from pkg import module``
+    return out
+
+
+def _offending(files, banned: tuple[str, ...]) -> dict[str, list[str]]:
+    """Per file, the imported modules that are, or lie under, one of ``banned``."""
+    bad = {}
+    for f in files:
+        hits = sorted(m for m in _modules(f) if any(m == b or m.startswith(b + ".") for b in banned))
+        if hits:
+            bad[str(f.relative_to(REPO))] = hits
+    return bad
+
+
+def _tracked_python() -> list[pathlib.Path]:
+    """The project's Python files (the checkout's, not a virtual environment's)."""
+    skip = {".git", ".venv", "venv", "build", "dist", "node_modules"}
+    return sorted(p for p in REPO.rglob("*.py")
+                  if not skip & set(p.relative_to(REPO).parts) and not any(s.endswith(".egg-info") for s in p.parts))
+
+
+def test_nothing_outside_tests_imports_tests():
+    """The programs, the studies and the examples never import the test suite: what both
+    need lives in ``orchestrator.testkit``."""
+    files = [p for p in _tracked_python() if p.relative_to(REPO).parts[0] != "tests"]
+    assert files
+    assert not _offending(files, ("tests",))
+
+
+def test_studies_never_import_tests():
+    """The benchmarks and studies take their helpers from the test kit, not from ``tests/``."""
+    files = sorted((REPO / "orchestrator" / "studies").rglob("*.py"))
+    assert files
+    assert not _offending(files, ("tests",))

@@ -49,14 +49,10 @@ from typing import Any
 
 import numpy as np
 
-REPO = pathlib.Path(__file__).resolve().parents[3]
-if str(REPO) not in sys.path:
-    sys.path.insert(0, str(REPO))
-
-from copath.scenario import Scenario, load_scenario  # noqa: E402
-from copath.slots import track_coordinate, wrap_near  # noqa: E402
-from copath.wire.keys import Keys  # noqa: E402
-from copath.wire.messages import Command, Event, Truth  # noqa: E402
+from copath.scenario import Scenario, load_scenario
+from copath.slots import track_coordinate, wrap_near
+from copath.wire.keys import Keys
+from copath.wire.messages import Command, Event, Truth
 
 KINDS = ("kill", "stop", "stall", "silence", "partition")
 PROCESS_KINDS = ("kill", "stop", "stall")
@@ -379,7 +375,7 @@ def _config(name: str) -> pathlib.Path:
     p = pathlib.Path(name)
     if p.is_file():
         return p
-    from tests.conftest import config  # noqa: PLC0415
+    from orchestrator.testkit.scenarios import config  # noqa: PLC0415
 
     return config(name)
 

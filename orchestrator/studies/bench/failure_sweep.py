@@ -21,21 +21,16 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
-import pathlib
 import sys
 import time
 from typing import Any
 
-REPO = pathlib.Path(__file__).resolve().parents[3]
-if str(REPO) not in sys.path:
-    sys.path.insert(0, str(REPO))
-
-from copath.scenario import Scenario, Silence  # noqa: E402
-from orchestrator import api  # noqa: E402
-from copath.slots import track_coordinate  # noqa: E402
-from orchestrator.run.inprocess import run_scenario  # noqa: E402
-from orchestrator.analysis.truth import truth_series  # noqa: E402
-from tests.conftest import config  # noqa: E402
+from copath.scenario import Scenario, Silence
+from copath.slots import track_coordinate
+from orchestrator import api
+from orchestrator.analysis.truth import truth_series
+from orchestrator.run.inprocess import run_scenario
+from orchestrator.testkit.scenarios import config
 
 CASES: list[tuple[str, tuple[float, ...], float, tuple[str, ...]]] = [
     # (scenario prefix, fault times [s], run length [s], victims)

@@ -13,7 +13,7 @@ event, or the orchestrator's exit), the rejects counted (``fleet.messages_reject
 the run's reason. Rows that need root and network namespaces are left out, with the
 reason, where that is not permitted.
 
-The faults are injected with the test suite's own helpers (``tests/faults``)."""
+The faults are injected with the test kit the test suite uses too (``orchestrator.testkit``)."""
 
 from __future__ import annotations
 
@@ -30,27 +30,20 @@ import tempfile
 import time
 from typing import Any, Callable
 
-REPO = pathlib.Path(__file__).resolve().parents[3]
-if str(REPO) not in sys.path:
-    sys.path.insert(0, str(REPO))
+import msgpack
 
-import msgpack  # noqa: E402
-
-from copath.scenario import load_scenario  # noqa: E402
-from copath.grading import grade  # noqa: E402
-from copath.wire.keys import Keys  # noqa: E402
-from copath.wire.messages import Command, End, PeerEnvelope  # noqa: E402
-from copath.wire.session import free_port, loopback_endpoint  # noqa: E402
-from orchestrator.log.mcap import read_log  # noqa: E402
-from tests.conftest import config  # noqa: E402
-from tests.faults import hosts as netns  # noqa: E402
-from tests.faults.test_forgery import _attacker, _wait_for_truth  # noqa: E402
-from tests.faults.test_fuzz import _fuzz_payloads  # noqa: E402
-from tests.faults.test_netns import DROP, run_across_hosts  # noqa: E402
-from tests.faults.test_robot_failure import _unfreeze, _victim  # noqa: E402
-from tests.faults.test_router import kill_remote_router  # noqa: E402
-from tests.faults.test_secure import _session  # noqa: E402
-from tests.integration.conftest import Procs  # noqa: E402
+from copath.grading import grade
+from copath.scenario import load_scenario
+from copath.wire.keys import Keys
+from copath.wire.messages import Command, End, PeerEnvelope
+from copath.wire.session import free_port, loopback_endpoint
+from orchestrator.log.mcap import read_log
+from orchestrator.testkit import hosts as netns
+from orchestrator.testkit.attacker import attacker, session, wait_for_truth
+from orchestrator.testkit.fuzz import fuzz_payloads
+from orchestrator.testkit.hosts import DROP, kill_remote_router, run_across_hosts
+from orchestrator.testkit.processes import Procs, child_pids, cmdline, unfreeze, victim
+from orchestrator.testkit.scenarios import config
 
 SCENARIO = config("e5.5-")
 DURATION = "60"
@@ -168,20 +161,19 @@ def summarise(name: str, case: Case) -> dict[str, Any]:
 def _robot(policy: str, sig: signal.Signals, duration: str = DURATION) -> Callable[[Case, Procs], None]:
     def run(case: Case, procs: Procs) -> None:
         p, _ = case.start(procs, "--on-robot-failure", policy, duration=duration)
-        pid = _victim(p, case.out)
+        pid = victim(p, case.out)
         case.t_fault, case.detect = time.time_ns(), "lost"
         os.kill(pid, sig)
         try:
             case.wait(p)
         finally:
-            _unfreeze(pid, sig)
+            unfreeze(pid, sig)
     return run
 
 
 def sim_killed(case: Case, procs: Procs) -> None:
     p, _ = case.start(procs)
     _under_way(case, p)
-    from tests.integration.conftest import child_pids, cmdline  # noqa: PLC0415
 
     pid = next(q for q in child_pids(p.pid) if "sim" in cmdline(q))
     t_kill = time.time()
@@ -212,8 +204,8 @@ def _nan_peer_records() -> list[bytes]:
 def _open_attack(inject: Callable[[Case, Any], None], ticks: int = 30) -> Callable[[Case, Procs], None]:
     def run(case: Case, procs: Procs) -> None:
         p, ep = case.start(procs, "--no-secure")
-        with _attacker(ep) as bad:
-            _wait_for_truth(bad, case.keys, ticks, p)
+        with attacker(ep) as bad:
+            wait_for_truth(bad, case.keys, ticks, p)
             case.t_fault, case.detect = time.time_ns(), "reject"
             inject(case, bad)
             time.sleep(0.5)
@@ -236,7 +228,7 @@ def fuzz_open(case: Case, bad) -> None:
 
     keys = case.keys
     targets = [keys.obs("r1"), keys.peer_broadcast("r2"), keys.peer_direct("r2", "r1"), keys.start, keys.end]
-    for i, data in enumerate(_fuzz_payloads(random.Random(10), 3000, "r1", "r2")):
+    for i, data in enumerate(fuzz_payloads(random.Random(10), 3000, "r1", "r2")):
         case.inject(bad, targets[i % len(targets)], data)
         if i % 200 == 0:
             time.sleep(0.01)
@@ -246,8 +238,8 @@ def forged_cmds_open(case: Case, procs: Procs) -> None:
     """A stranger answers r1's observations with its own commands for 10 simulated seconds."""
     p, ep = case.start(procs, "--no-secure")
     keys = case.keys
-    with _attacker(ep) as bad:
-        _wait_for_truth(bad, keys, 30, p)
+    with attacker(ep) as bad:
+        wait_for_truth(bad, keys, 30, p)
         case.t_fault, case.detect = time.time_ns(), "none"  # well-formed: nothing on an open bus can tell
         sent = []
 
@@ -278,7 +270,7 @@ def _secure_attack(kind: str) -> Callable[[Case, Procs], None]:
             if p.poll() is not None or time.monotonic() > deadline:
                 raise RuntimeError("no credentials were written")
             time.sleep(0.05)
-        with _session(ep, str(cred), timeout_ms=60000) as bad:
+        with session(ep, str(cred), timeout_ms=60000) as bad:
             _under_way(case, p)
             case.t_fault, case.detect = time.time_ns(), "none"  # refused by the router: nothing to detect
             if kind == "cmds":
@@ -289,7 +281,7 @@ def _secure_attack(kind: str) -> Callable[[Case, Procs], None]:
             else:
                 targets = [keys.obs("r1"), keys.peer_broadcast("r1"), keys.peer_direct("r3", "r1"), keys.start,
                            keys.end, keys.cmd("r1"), keys.truth]
-                for i, data in enumerate(_fuzz_payloads(random.Random(11), 3000, "r1", "r3")):
+                for i, data in enumerate(fuzz_payloads(random.Random(11), 3000, "r1", "r3")):
                     case.inject(bad, targets[i % len(targets)], data, recorded=False)
                     if i % 200 == 0:
                         time.sleep(0.01)

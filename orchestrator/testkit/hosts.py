@@ -1,6 +1,6 @@
 """Two "hosts" on one machine: Linux network namespaces joined by a veth pair, each with
-its own Zenoh router (docs/reference/faults.md, "Across hosts"). Shared by the netns and router
-tests and by ``orchestrator/studies/bench/fault_table.py``.
+its own Zenoh router (docs/reference/faults.md, "Across hosts"), and E5.5 fleets run across
+them. Shared by the netns and router tests and by ``orchestrator/studies/bench/fault_table.py``.
 
 Host A is 10.77.0.1, host B 10.77.0.2 on their own /24. Setting them up needs root and
 ``ip netns``; an impairment of the link needs ``tc`` (rate limit) or ``iptables`` (random
@@ -9,6 +9,7 @@ drop with the ``statistic`` match). :func:`why_not` names what is missing."""
 from __future__ import annotations
 
 import contextlib
+import json
 import os
 import shutil
 import signal
@@ -19,7 +20,10 @@ import uuid
 from dataclasses import dataclass
 from typing import Callable, Iterator
 
-from tests.conftest import REPO
+from orchestrator.log.mcap import read_log
+
+from .processes import REPO, child_env
+from .scenarios import config
 
 ADDR_A, ADDR_B = "10.77.0.1", "10.77.0.2"
 PORT = 7447
@@ -136,11 +140,6 @@ finally:
 """A host's own Zenoh router: ``python -c ROUTER LISTEN LEASE_MS [CONNECT...]``."""
 
 
-def child_env() -> dict[str, str]:
-    env = dict(os.environ)
-    env["PYTHONPATH"] = str(REPO) + os.pathsep + env.get("PYTHONPATH", "")
-    return env
-
 
 def popen(hosts: Hosts, host: str, argv: list[str], log=None) -> subprocess.Popen:
     """A Python program in ``host``'s namespace, in its own process group (kill by pid);
@@ -191,3 +190,66 @@ def stop_all(procs) -> None:
         except subprocess.TimeoutExpired:
             pass
     procs.cleanup()
+
+
+# -- fleets across the two hosts ----------------------------------------------------------
+
+DROP = 0.3
+"""Share of the packets arriving at host A that the netns fault drops."""
+LEASE_MS = 10000
+"""Transport lease host B's router announces on a lossy link (docs/reference/faults.md, "Across hosts")."""
+REMOTE = ("r2", "r3")
+"""The robots :func:`kill_remote_router` runs on host B."""
+
+
+def run_across_hosts(tmp_path, procs, hosts, run_id: str, duration_s: float = 40.0):
+    """E5.5 with the run's router, recorder, simulator, r1 and r3 on host A and r2 on host B
+    behind B's own router (connected to A's). Returns (orchestrator, r2) once both exited."""
+    run = popen(hosts, hosts.a, ["-m", "orchestrator", "run", str(config("e5.5-")), "--out", str(tmp_path),
+                                 "--run-id", run_id, "--duration", str(duration_s), "--listen", endpoint(ADDR_A),
+                                 "--external", "r2", "-q", "--no-plots", "--no-secure"])  # a site router logs in as nobody (README)
+    procs.started.append(run)
+    procs.started.append(start_router(hosts, hosts.b, endpoint(ADDR_B), endpoint(ADDR_A), lease_ms=LEASE_MS))
+    wait_for_file(tmp_path / "scenario.json", run)
+    r2_log = tmp_path / "logs" / "r2.log"  # the run's own logs are beside it
+    r2 = popen(hosts, hosts.b, ["-m", "agent", "--run-id", run_id, "--robot", "r2",
+                                "--config", str(tmp_path / "scenario.json"), "--connect", endpoint(ADDR_B)], log=r2_log)
+    procs.started.append(r2)
+    assert run.wait(timeout=240) == 0, run.stderr.read().decode()[-3000:] + r2_log.read_text()[-2000:]
+    assert r2.wait(timeout=30) == 0, r2_log.read_text()[-2000:]
+    return run, r2
+
+
+def kill_remote_router(tmp_path, procs, hosts, policy: str, run_id: str = "router", duration_s: float = 60.0) -> dict:
+    """E5.5 with r1 on host A and r2, r3 on host B; B's router is killed once the run is under
+    way. Returns the orchestrator's exit code and stderr, metrics.json, the read-back log and
+    the detection time (kill to the simulator's ``robot_lost`` event or, under ``fail``, its
+    ``End``) in seconds."""
+    router_b = start_router(hosts, hosts.b, endpoint(ADDR_B))
+    procs.started.append(router_b)
+    run = popen(hosts, hosts.a, ["-m", "orchestrator", "run", str(config("e5.5-")), "--out", str(tmp_path),
+                                 "--run-id", run_id, "--duration", str(duration_s), "--listen", endpoint(ADDR_A),
+                                 "--connect", endpoint(ADDR_B), *[a for n in REMOTE for a in ("--external", n)],
+                                 "--on-robot-failure", policy, "-q", "--no-plots", "--no-secure"])  # a site router logs in as nobody (README)
+    procs.started.append(run)
+    wait_for_file(tmp_path / "scenario.json", run)
+    for n in REMOTE:
+        procs.started.append(popen(hosts, hosts.b, ["-m", "agent", "--run-id", run_id, "--robot", n, "--config",
+                                                    str(tmp_path / "scenario.json"), "--connect", endpoint(ADDR_B)]))
+    mcap = tmp_path / "run.mcap"
+    deadline = time.monotonic() + 150
+    while not (mcap.is_file() and mcap.stat().st_size > 200_000):  # the run is under way
+        assert run.poll() is None and time.monotonic() < deadline, run.stderr.read().decode()[-2000:]
+        time.sleep(0.05)
+    t_kill = time.time_ns()
+    os.kill(router_b.pid, signal.SIGKILL)
+    rc = run.wait(timeout=240)
+    stderr = run.stderr.read().decode()
+    log = read_log(mcap)
+    if policy == "fail":
+        marks = [t for t, _, r in log.records if getattr(r, "TYPE", "") == "end"]
+    else:
+        marks = [t for t, _, r in log.records if getattr(r, "TYPE", "") == "event" and r.what == "robot_lost"]
+    detection = [(t - t_kill) / 1e9 for t in marks]
+    return {"rc": rc, "stderr": stderr, "metrics": json.loads((tmp_path / "metrics.json").read_text()), "log": log,
+            "detection_s": max(detection) if detection else None}

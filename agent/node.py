@@ -457,7 +457,7 @@ def process_start_time() -> float:
 REALTIME_NICE = 15
 """Realtime: agents lower their scheduling priority by this much (``os.nice``) so that on a
 busy machine the simulator's 100 Hz physics and the router and recorder are served first
-(docs/reference/performance.md, goals measured and realtime at 128 robots (P9-P10): at 128 robots 5 was not enough); 0 leaves it."""
+(docs/journal/performance.md, goals measured and realtime at 128 robots (P9-P10): at 128 robots 5 was not enough); 0 leaves it."""
 
 
 def _yield_to_simulator() -> None:

@@ -1,7 +1,7 @@
 """A pre-imported agent launcher: the imports once, then one forked process per robot.
 
 An agent process spends most of its start-up importing numpy, the controllers, the wire
-code and Zenoh (docs/reference/performance.md, realtime at 128 robots (P10)). The zygote does that once for a run: it imports
+code and Zenoh (docs/journal/performance.md, realtime at 128 robots (P10)). The zygote does that once for a run: it imports
 ``agent.node``, reads the run's scenario and builds one controller of each type (which
 imports what that controller imports lazily, e.g. CasADi), and then serves requests on its
 standard input, one JSON line per robot::

@@ -260,7 +260,7 @@ class Path:
         path, without its numpy overhead on one-element arrays. The curve and the
         transcendental functions are still numpy's (the curve's nine stencil points in
         one call; ``arctan2`` and ``hypot`` as ufuncs), since libm's and numpy's may
-        differ in the last bit (docs/reference/performance.md, profile of E5.4 (P12))."""
+        differ in the last bit (docs/journal/performance.md, profile of E5.4 (P12))."""
         L = self.length
         if self.closed:
             laps = math.floor(s / L)

@@ -199,7 +199,7 @@ class Neighbour(NamedTuple):
     """What the filter knows about another robot: its last heard position and how old it is.
 
     Immutable, with named fields, as a frozen dataclass, but built in a tenth of the time: a
-    guard builds one per heard robot at every step (docs/reference/performance.md, against IR-SIM (P15))."""
+    guard builds one per heard robot at every step (docs/journal/performance.md, against IR-SIM (P15))."""
 
     position: tuple[float, float]
     """Centre [x, y] the robot sent [m]."""
@@ -771,7 +771,7 @@ class SafetyFilter:
         robot, where numpy's per-call cost dominates) and with numpy for the committed tubes. A
         row evaluated here may differ from the matrix product in the last bits; the margin,
         many orders above that, makes this test pass only where :meth:`constraints` passes too,
-        so the filter's decisions and commands are those of the full test (docs/reference/performance.md,
+        so the filter's decisions and commands are those of the full test (docs/journal/performance.md,
         against IR-SIM (P15)). Range readings are left to the full test."""
         cfg = self.config
         if cfg.use_ranges and ranges is not None and angles is not None:

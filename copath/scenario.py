@@ -129,7 +129,7 @@ class RunConfig:
     """Zenoh transport lease of every process of the run and of its router [s]: a frozen
     process loses its liveliness within about this time. On a machine with far more
     processes than cores (about a hundred robots on two) a starved transport misses a 1 s
-    lease and is reset; a longer lease avoids that (docs/reference/performance.md, realtime at 128 robots (P10))."""
+    lease and is reset; a longer lease avoids that (docs/journal/performance.md, realtime at 128 robots (P10))."""
     liveliness_grace_s: float = 5.0
     """A liveliness token that disappears counts as a lost process only when it has not come
     back within this time [s]: a transport reset under CPU starvation (the 1 s lease lapses,

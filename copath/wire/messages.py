@@ -56,7 +56,7 @@ def to_plain(x: Any) -> Any:
 
     Values of the plain types and lists, tuples and dicts of them take a fast path (no
     recursion per element); the result, and so the packed bytes, are the same as the
-    general conversion's (docs/reference/performance.md, profile of E5.4 (P12))."""
+    general conversion's (docs/journal/performance.md, profile of E5.4 (P12))."""
     t = type(x)
     if t in _PLAIN_TYPES:
         return x

@@ -212,7 +212,7 @@ class ZenohLink:
         neighbour broadcasts): a receiver that falls behind (a starved process) then loses
         old samples instead of making the router wait for it. With BLOCK the router's
         forwarding waits for that receiver's queue, stops reading the other links (their
-        1 s lease lapses) and after 5 s closes the transport (docs/reference/performance.md, realtime at 128 robots (P10)).
+        1 s lease lapses) and after 5 s closes the transport (docs/journal/performance.md, realtime at 128 robots (P10)).
         The local recorder still gets every record. Call before the first publish on a key."""
         self._droppable += tuple(key_exprs)
 

@@ -2,7 +2,7 @@
 
 ``Path.frame`` of a Python number runs on Python floats and must return exactly what the
 array path returns for the same arc length; ``to_plain`` skips its recursion for plain
-values and must convert exactly as the general conversion (docs/reference/performance.md, profile of E5.4 (P12))."""
+values and must convert exactly as the general conversion (docs/journal/performance.md, profile of E5.4 (P12))."""
 
 import math
 

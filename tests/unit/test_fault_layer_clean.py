@@ -1,6 +1,6 @@
 """The fault layer on a network without faults releases every message at its stamp: the
 same release times as the general path (which draws per message for the fault decisions),
-without the draws (docs/reference/performance.md, profile of E6.1 (P11))."""
+without the draws (docs/journal/performance.md, profile of E6.1 (P11))."""
 
 import numpy as np
 

@@ -266,3 +266,30 @@ def test_experiment_catalogue_covers_every_bundled_scenario():
         if experiment is not None and str(experiment).lower() not in entries:
             missing.append(f"{f.name}: experiment {experiment!r} has no entry in docs/reference/experiments.md")
     assert not missing, "\n".join(missing)
+
+
+def test_architecture_names_every_folder_and_only_folders_that_exist():
+    """docs/reference/architecture.md's folder table is kept true: every folder it names
+    exists (``<family>`` stands for each folder of agent/controllers/), and every tracked
+    folder one or two levels down is named there."""
+    page = (ROOT / "docs" / "reference" / "architecture.md").read_text(encoding="utf-8")
+    table = page[page.index("## Folders"):]
+    named = re.findall(r"^\|\s*`([\w./<>-]+/)`\s*\|", table, re.M)
+    assert named, "architecture.md has a folder table"
+    missing = []
+    for folder in named:
+        if "<" in folder:
+            parent = ROOT / folder.split("<")[0]
+            if not any(p.is_dir() and (p / "__init__.py").is_file() for p in parent.iterdir()):
+                missing.append(f"{folder}: no such folder under {parent.relative_to(ROOT)}")
+        elif not (ROOT / folder).is_dir():
+            missing.append(f"{folder} does not exist")
+    out = subprocess.run(["git", "ls-files"], cwd=ROOT, capture_output=True, text=True, check=True).stdout
+    folders = set()
+    for line in out.splitlines():
+        parts = line.split("/")[:-1]
+        if parts and not parts[0].startswith("."):
+            folders.update("/".join(parts[:n]) + "/" for n in (1, 2) if len(parts) >= n)
+    unnamed = sorted(f for f in folders if f not in named and (ROOT / f).is_dir())
+    assert not missing, "architecture.md names folders that do not exist:\n" + "\n".join(missing)
+    assert not unnamed, f"architecture.md's folder table does not name {unnamed}"

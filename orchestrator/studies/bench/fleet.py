@@ -51,7 +51,7 @@ def _fleet_cpu(outcome, run_id: str) -> dict[str, Any]:
     """CPU of the fleet's processes from their closing accounts: the agents' CPU per control
     step from the start record on (Zenoh's threads included; p50 over agents) and the
     simulator's whole CPU time. CPU time depends much less on the machine's load than
-    wall time, so before/after pairs compare on it (docs/reference/performance.md, profile of E5.4 (P12))."""
+    wall time, so before/after pairs compare on it (docs/journal/performance.md, profile of E5.4 (P12))."""
     from copath.wire.keys import Keys  # noqa: PLC0415
 
     from orchestrator.analysis.metrics import trace_from_records  # noqa: PLC0415

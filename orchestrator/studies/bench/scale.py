@@ -11,7 +11,7 @@ Per size it prints the agents' deadline misses (a step that ended after the next
 began; and their share of all control periods), the simulator's physics overruns (steps
 started late), the coordination error after ``--settle`` (from the truth; over all pairs,
 and over the chain's edges only: on a chain the all-pairs figure adds up the small offsets
-of its N - 1 edges, docs/reference/performance.md, realtime at 128 robots (P10)), the largest peak memory of an agent process, the start-up time (call to the first tick), the age of
+of its N - 1 edges, docs/journal/performance.md, realtime at 128 robots (P10)), the largest peak memory of an agent process, the start-up time (call to the first tick), the age of
 neighbour messages on arrival (p99 over agents; from the sender's control instant, so
 it includes the sender's step), the agents' CPU time per control step (median over agents,
 from the start record on, Zenoh's threads included), the CPU cores the agents used
@@ -44,7 +44,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="coordination error measured after this time [20]")
     parser.add_argument("--lease", type=float, default=5.0, metavar="S",
                         help="run.lease_s, the Zenoh transport lease [5]: with 1 s, a hundred processes on two "
-                             "cores miss leases and their transports are reset (docs/reference/performance.md, realtime at 128 robots (P10))")
+                             "cores miss leases and their transports are reset (docs/journal/performance.md, realtime at 128 robots (P10))")
     parser.add_argument("--fork-server", action=argparse.BooleanOptionalAction, default=True,
                         help="start the agents by forking a pre-imported launcher (agent/zygote.py) [on]")
     parser.add_argument("--out", help="keep the runs here (default: a temporary directory, removed)")

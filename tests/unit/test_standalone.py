@@ -2,8 +2,7 @@
 never notes kept outside the repository, and every docs/ file or entry they cite exists.
 
 An entry is a markdown heading that starts with its label (``### A38 — Ch. 6: ...``).
-Labels are unique across docs/ (one letter per kind of entry: A ambiguities, C conventions,
-D derivations, M metrics, N controller notes, P performance, V viewing, W measurements;
+Labels are unique across docs/ (one letter per kind of entry, listed in docs/README.md;
 E ids are the experiments' own ids, the scenario key ``experiment``).
 
 A label is cited with a name taken from its heading, then the label in parentheses:

@@ -1,4 +1,4 @@
-"""The fault table (docs/reference/faults.md, "Measured"): every fault or attack of ``tests/faults``
+"""The fault table (docs/journal/faults.md, "The fault table on E5.5"): every fault or attack of ``tests/faults``
 tried once on a short E5.5 run (Sec. 5.5, lockstep over Zenoh), with what happened.
 
     python -m orchestrator.studies.bench.fault_table [--only NAME ...] [--json]

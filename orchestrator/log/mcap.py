@@ -61,7 +61,7 @@ class Recorder:
 
     The file is written by ``foxglove-sdk``'s MCAP writer (Rust): about 2 us per message
     against 9 us for the pure-Python ``mcap`` writer, which held the recorder to 80 k
-    messages/s (docs/reference/performance.md, "Recorder"). Each key is a channel with message
+    messages/s (docs/journal/performance.md, goals of the issue, measured (P9)). Each key is a channel with message
     encoding ``msgpack`` and schema id 0 (self-describing), as the MCAP spec's well-known
     encodings have it; the SDK's public ``Channel`` asks for a schema for any encoding
     but JSON, so the schemaless channel is made by the context the public class uses."""

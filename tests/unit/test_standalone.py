@@ -173,6 +173,27 @@ def test_every_cited_doc_and_entry_exists():
     assert not missing, "\n".join(sorted(set(missing)))
 
 
+_SECTION = re.compile(r'docs/((?:[\w.-]+/)?[\w.-]+\.md)`?,?\s+"([^"]+)"')
+
+
+def test_every_cited_section_exists():
+    """A section cited by its title, ``docs/reference/faults.md, "Gone quiet"``, is there: a
+    heading (after its label, if any), a bold lead-in, a bullet or a line starts with it."""
+    missing = []
+    for f in _tracked():
+        text = f.read_text(encoding="utf-8")
+        for m in _SECTION.finditer(text):
+            doc = ROOT / "docs" / m.group(1)
+            if not doc.is_file():
+                continue  # test_every_cited_doc_and_entry_exists reports it
+            title = re.sub(r"\s*\n\s*(?:#+|\*)?\s*", " ", m.group(2)).strip().lower()
+            page = doc.read_text(encoding="utf-8").lower()
+            words = r"\s+".join(re.escape(w) for w in title.split())
+            if not re.search(r"(?m)(?:^#+\s+(?:[a-z]\d+ — )?|\*\*|^- |^)(?:the )?" + words, page):
+                missing.append(f"{f.relative_to(ROOT)}: docs/{m.group(1)} has no section {m.group(2)!r}")
+    assert not missing, "\n".join(sorted(set(missing)))
+
+
 def _unnamed(text: str, label: str, last: str | None, start: int) -> str | None:
     """Why the citation of label (or the range label-last) at start lacks its name, or None."""
     labels = _span(label, last) if last else [label]

@@ -21,12 +21,15 @@ import logging
 import signal
 import threading
 import time
+from typing import Callable
 
 import numpy as np
 
 from copath.ros2 import frames
 from copath.scenario import Scenario
+from copath.wire.link import Callback, Link, RejectCallback
 from copath.wire.messages import Command, End, Obs
+from copath.wire.trust import RejectLog
 
 logger = logging.getLogger("copath.agent.ros2")
 
@@ -140,21 +143,49 @@ class Ros2RobotIO:
 
 
 class CommandTap:
-    """A link that sends the robot's own commands to its ROS 2 driver as well (the rest of
-    the link is the wrapped one's)."""
+    """A :class:`copath.wire.link.Link` that sends the robot's own commands to its ROS 2
+    driver as well; everything else is the wrapped link's."""
 
-    def __init__(self, link, cmd_key: str, ros: Ros2RobotIO) -> None:
+    def __init__(self, link: Link, cmd_key: str, ros: Ros2RobotIO) -> None:
         self._link = link
         self._cmd_key = cmd_key
         self._ros = ros
+
+    @property
+    def published(self) -> int:
+        return self._link.published
+
+    @property
+    def rejects(self) -> int:
+        return self._link.rejects
+
+    @property
+    def synchronous(self) -> bool:
+        return self._link.synchronous
+
+    @property
+    def reject_log(self) -> RejectLog:
+        return self._link.reject_log
 
     def publish(self, key: str, record) -> None:
         if key == self._cmd_key and isinstance(record, Command):
             self._ros.command(record.cmd)
         self._link.publish(key, record)
 
-    def __getattr__(self, name: str):
-        return getattr(self._link, name)
+    def subscribe(self, key_expr: str, callback: Callback, on_reject: RejectCallback | None = None) -> None:
+        self._link.subscribe(key_expr, callback, on_reject)
+
+    def declare_token(self, key: str) -> None:
+        self._link.declare_token(key)
+
+    def watch_liveliness(self, key_expr: str, callback: Callable[[str, bool], None]) -> None:
+        self._link.watch_liveliness(key_expr, callback)
+
+    def drop_when_congested(self, *key_exprs: str) -> None:
+        self._link.drop_when_congested(*key_exprs)
+
+    def close(self) -> None:
+        self._link.close()
 
 
 def run(runtime, keys, link, clock: str) -> None:

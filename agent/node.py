@@ -60,7 +60,7 @@ class AgentNode:
         self.keys = keys
         self.link = link
         self.clock = clock
-        self.inline = bool(getattr(link, "synchronous", False)) and clock == "lockstep"
+        self.inline = link.synchronous and clock == "lockstep"
         """Step inside the observation's delivery (a synchronous link, lockstep)."""
         self.obs_q: queue.Queue = queue.Queue()
         self.latest_obs: Obs | None = None
@@ -74,9 +74,7 @@ class AgentNode:
         self._finished = False
         self._ages: list[float] = []  # realtime: neighbour message age on arrival [s]
         # one count of rejects per process: the runtime's stamp checks count into the link's log
-        self._shared_rejects = getattr(link, "reject_log", None) is not None
-        if self._shared_rejects:
-            runtime.reject_log = link.reject_log
+        runtime.reject_log = link.reject_log
         self.end_grace_s = 2.0
         """An ``End`` is honoured when the simulator's token goes (it exits after it) or
         when no newer observation follows within this time; an observation after it
@@ -90,7 +88,7 @@ class AgentNode:
         self._sim_gone_at: float | None = None
         self._cpu_at_start = 0.0
         self._barrier = True
-        self.process_start = time.time() if getattr(link, "synchronous", False) else process_start_time()
+        self.process_start = time.time() if link.synchronous else process_start_time()
         """Wall time [s] this process started (a fork of the zygote: the fork; in one
         process, where a restart is a new node: the node's creation)."""
         self.joined_late = False
@@ -374,9 +372,8 @@ class AgentNode:
                     break
                 self._lockstep_step(obs)
         else:
-            drop = getattr(self.link, "drop_when_congested", None)
-            if drop is not None:  # realtime: the newest broadcast matters, a starved receiver loses old ones
-                drop(self.keys.peer_broadcast(self.rt.name), self.keys.peer_direct(self.rt.name, "*"))
+            # realtime: the newest broadcast matters, a starved receiver loses old ones
+            self.link.drop_when_congested(self.keys.peer_broadcast(self.rt.name), self.keys.peer_direct(self.rt.name, "*"))
             _yield_to_simulator()
             waited, told = time.monotonic(), time.monotonic()
             while not self.started.wait(timeout=0.5):
@@ -426,7 +423,7 @@ class AgentNode:
         if ev is not None:
             self.link.publish(self.keys.event(self.rt.name), ev)
         counters = self.rt.closing_counters()
-        counters["rejects"] = self.link.rejects + (0 if self._shared_rejects else self.rt.reject_log.total)
+        counters["rejects"] = self.link.rejects  # the runtime's stamp rejects are in the link's log
         counters["peak_rss_mb"] = _peak_rss_mb()
         cpu = os.times()
         counters["cpu_s"] = round(cpu.user + cpu.system, 3)  # the whole process: start-up, Zenoh's threads

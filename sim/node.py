@@ -84,7 +84,7 @@ class SimNode:
         self.duration_s = scenario.run.duration_s if duration_s is None else duration_s
         self.on_tick = on_tick
         """Called with k after each lockstep tick (progress display)."""
-        self.synchronous = bool(getattr(link, "synchronous", False))
+        self.synchronous = link.synchronous
         self._started_run = False
         self._started = False
         self.tasks = TaskWatch(scenario) if scenario.run.until == "tasks_done" else None
@@ -200,12 +200,10 @@ class SimNode:
 
     def _reject_event(self, closing: bool = False) -> None:
         """At most one ``messages_rejected`` event a second (copath.wire.trust.RejectLog)."""
-        log = getattr(self.link, "reject_log", None)
-        if log is not None:
-            t = float(self.world.t)
-            ev = log.flush("sim", t) if closing else log.event("sim", t, time.monotonic())
-            if ev is not None:
-                self.link.publish(self.keys.event("sim"), ev)
+        log, t = self.link.reject_log, float(self.world.t)
+        ev = log.flush("sim", t) if closing else log.event("sim", t, time.monotonic())
+        if ev is not None:
+            self.link.publish(self.keys.event("sim"), ev)
 
     # -- run ------------------------------------------------------------------------------
     def start(self) -> None:
@@ -313,9 +311,8 @@ class SimNode:
 
     def _realtime(self) -> tuple[int, bool, str]:
         run = self.scenario.run
-        drop = getattr(self.link, "drop_when_congested", None)
-        if drop is not None:  # a starved agent loses old observations instead of stalling the router
-            drop(self.keys.obs("*"))
+        # a starved agent loses old observations instead of stalling the router
+        self.link.drop_when_congested(self.keys.obs("*"))
         t0 = time.monotonic()
         next_obs = 0.0
         k = 0

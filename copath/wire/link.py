@@ -71,6 +71,9 @@ class Link(Protocol):
     synchronous: bool
     """True when ``publish`` has already run every subscriber's callback when it returns
     (in-memory); False when records arrive on other threads (Zenoh)."""
+    reject_log: RejectLog
+    """What this link refused, by reason (``rejects`` is its total). A robot's runtime counts
+    its own stamp checks into the same log, so each reject is counted once per process."""
 
     def publish(self, key: str, record: Any) -> None: ...
 
@@ -79,6 +82,13 @@ class Link(Protocol):
     def declare_token(self, key: str) -> None: ...
 
     def watch_liveliness(self, key_expr: str, callback: Callable[[str, bool], None]) -> None: ...
+
+    def drop_when_congested(self, *key_exprs: str) -> None:
+        """Publish records on keys matching ``key_exprs`` so that a receiver that falls
+        behind loses old ones instead of stalling the others (realtime streams where only
+        the newest value matters; docs/journal/performance.md, realtime at 128 robots
+        (P10)). Call before the first publish on those keys."""
+        ...
 
     def close(self) -> None: ...
 
@@ -213,6 +223,10 @@ class MemoryLink:
         if self.user is not None:
             self.bus.policy.check(self.user, "subscribe", key_expr)
         self.bus._subscribe(key_expr, callback, self, on_reject)
+
+    def drop_when_congested(self, *key_exprs: str) -> None:
+        """Nothing to do: a synchronous publish has delivered before it returns, no queue
+        can fill."""
 
     def declare_token(self, key: str) -> None:
         if self.user is not None:

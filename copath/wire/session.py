@@ -172,6 +172,9 @@ class ZenohLink:
     fails validation, or a callback that raises, is counted in ``rejects``.
     """
 
+    synchronous = False
+    """Records arrive on Zenoh's threads, after ``publish`` returns (:class:`copath.wire.link.Link`)."""
+
     def __init__(self, session: zenoh.Session, declare_publishers: bool = True) -> None:
         self.session = session
         self.declare_publishers = declare_publishers

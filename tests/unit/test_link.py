@@ -8,7 +8,8 @@ import pytest
 from copath.scenario import load_scenario
 from copath.wire.keys import Keys
 from copath.wire.link import Link, MemoryBus, MemoryLink, key_matches
-from copath.wire.messages import Obs, PeerEnvelope, Stats, WireError, unpack
+from agent.io_ros2 import CommandTap
+from copath.wire.messages import Command, Obs, PeerEnvelope, Stats, WireError, unpack
 from copath.wire.trust import check_origin
 from copath.wire.session import ZenohLink
 from orchestrator.run.inprocess import run_scenario
@@ -43,7 +44,53 @@ def test_publish_delivers_synchronously_to_every_matching_subscriber_and_is_reco
     assert got_b == [("k/1/x", rec), ("k/1/y", rec)]
     assert b.published == 2 and a.published == 0
     assert bus.records == [(1_500_000_000, "k/1/x", rec), (1_500_000_000, "k/1/y", rec)]
-    assert isinstance(a, Link) and MemoryLink.synchronous and not getattr(ZenohLink, "synchronous", False)
+    assert MemoryLink.synchronous and not ZenohLink.synchronous
+
+
+def _protocol_members() -> set[str]:
+    return {m for m in Link.__annotations__} | {m for m, v in vars(Link).items()
+                                                   if callable(v) and not m.startswith("_")}
+
+
+def test_every_link_implements_everything_the_link_protocol_declares():
+    """The nodes read ``synchronous``, ``reject_log`` and ``drop_when_congested`` from the
+    Protocol, not by ``getattr`` with a default: each implementation has every member."""
+    members = _protocol_members()
+    assert {"synchronous", "reject_log", "drop_when_congested", "published", "rejects"} <= members
+    for cls in (MemoryLink, ZenohLink, CommandTap):
+        missing = {m for m in members if not hasattr(cls, m) and m not in _instance_attrs(cls)}
+        assert not missing, f"{cls.__name__} lacks {sorted(missing)}"
+    assert isinstance(MemoryBus().link(), Link)
+
+
+def _instance_attrs(cls) -> set[str]:
+    """Attributes an instance gets in ``__init__`` (ZenohLink needs a session to build)."""
+    import inspect  # noqa: PLC0415
+
+    return {m for m in ("published", "reject_log") if f"self.{m} =" in inspect.getsource(cls.__init__)}
+
+
+def test_the_ros2_command_tap_is_the_wrapped_link_with_commands_copied_to_the_driver():
+    bus = MemoryBus()
+    inner = bus.link()
+    sent = []
+
+    class _Driver:
+        def command(self, cmd):
+            sent.append(list(cmd))
+
+    tap = CommandTap(inner, "k/cmd", _Driver())
+    got = []
+    tap.subscribe("k/**", lambda k, r: got.append(k))
+    tap.drop_when_congested("k/obs")  # a memory bus never congests: accepted, nothing changes
+    tap.publish("k/cmd", Command(0, 0.0, [0.3, 0.1], 0.0, {}))
+    tap.publish("k/other", Stats("p", 0, {}))
+    assert isinstance(tap, Link) and tap.synchronous
+    assert sent == [[0.3, 0.1]] and got == ["k/cmd", "k/other"]
+    assert tap.published == inner.published == 2 and tap.reject_log is inner.reject_log
+    tap.close()
+    tap.publish("k/other", Stats("p", 0, {}))
+    assert got == ["k/cmd", "k/other"]  # closed: its subscription went with the wrapped link
 
 
 def test_a_failing_callback_is_counted_as_a_reject_and_delivery_goes_on():

@@ -74,7 +74,7 @@ class AgentNode:
         self._finished = False
         self._ages: list[float] = []  # realtime: neighbour message age on arrival [s]
         # one count of rejects per process: the runtime's stamp checks count into the link's log
-        runtime.reject_log = link.reject_log
+        runtime.count_rejects_in(link.reject_log)
         self.end_grace_s = 2.0
         """An ``End`` is honoured when the simulator's token goes (it exits after it) or
         when no newer observation follows within this time; an observation after it
@@ -196,7 +196,7 @@ class AgentNode:
         self._tripped = True
         name = self.rt.name
         logger.warning("heard nothing from the simulator for %.1f s; commanding zero velocity", silent)
-        self.link.publish(self.keys.cmd(name), Command(obs.k, float(obs.t), [0.0] * len(self.rt._last_cmd), 0.0,
+        self.link.publish(self.keys.cmd(name), Command(obs.k, float(obs.t), [0.0] * self.rt.command_size, 0.0,
                                                        dict(self.rt.sent)))
         self.link.publish(self.keys.event(name), Event(float(obs.t), name, "watchdog",
                                                        {"silent_s": round(silent, 3), "k": obs.k,
@@ -419,7 +419,7 @@ class AgentNode:
         if self._finished:
             return
         self._finished = True
-        ev = self.rt.reject_log.flush(self.rt.name, self.rt._now)
+        ev = self.rt.reject_log.flush(self.rt.name, self.rt.now)
         if ev is not None:
             self.link.publish(self.keys.event(self.rt.name), ev)
         counters = self.rt.closing_counters()

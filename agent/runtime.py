@@ -246,6 +246,29 @@ class RobotRuntime:
         """Without the safety filter: the last position each peer sent, and its stamp."""
 
     @property
+    def now(self) -> float:
+        """Controller time [s] of the latest step (0 before the first): the clock the stamp
+        window checks against, and the time of the node's closing records."""
+        return self._now
+
+    @property
+    def command_size(self) -> int:
+        """Length of this robot's command vector (its model's ``command_size``): a node's
+        zero command (the watchdog's stop) has this many zeros."""
+        return self._cmd_size
+
+    @property
+    def last_command(self) -> tuple[float, ...]:
+        """The command the latest step returned (zeros before the first)."""
+        return tuple(self._last_cmd)
+
+    def count_rejects_in(self, log: RejectLog) -> None:
+        """Count this runtime's rejects (peer stamps outside the window) in ``log`` from now
+        on: a node passes its link's log, so every reject of the process is counted once
+        and reported in one ``messages_rejected`` stream (docs/reference/faults.md)."""
+        self.reject_log = log
+
+    @property
     def subscriptions(self) -> list[str]:
         return self.keys.peer_subscriptions(self.name, self.neighbours)
 

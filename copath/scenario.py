@@ -242,6 +242,13 @@ class SensorConfig:
         require(self.count >= 1, "sensors.count", self.count, "must be >= 1")
         require(self.max_range_m > 0, "sensors.max_range_m", self.max_range_m, "must be > 0")
 
+    def angles(self):
+        """Bearings of the rays [rad] in the body frame, from 0 counter-clockwise, evenly
+        spaced (Sec. 4.4.2): ``2 pi k / count``."""
+        import numpy as np  # noqa: PLC0415
+
+        return 2 * math.pi * np.arange(self.count) / self.count
+
 
 @dataclass(frozen=True)
 class RobotSpec:

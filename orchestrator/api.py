@@ -338,13 +338,14 @@ def run(scenario: Scenario | str | pathlib.Path, overrides: Mapping[str, Any] | 
                            log_dir=None if out_dir is None else pathlib.Path(out_dir) / "logs")
         out = None
         if out_dir is not None:
-            from orchestrator.log.mcap import write_records
+            from orchestrator.log.writer import write_records
+            from orchestrator.view.foxglove import views_tap
 
             out = pathlib.Path(out_dir)
             out.mkdir(parents=True, exist_ok=True)
             (out / "metrics.json").write_text(json.dumps(res.metrics, indent=2))
             if log:
-                write_records(out / "run.mcap", res.records, sc, rid)
+                write_records(out / "run.mcap", res.records, sc, rid, taps=[views_tap(sc)])
         return Run(sc, res.metrics, res.records, out, res.ok, res.metrics["failure"] or "completed")
     from orchestrator.run.fleet import RunOptions, run_fleet
 

@@ -37,6 +37,7 @@ from copath.wire.keys import Keys
 from copath.wire.messages import PeerEnvelope, Telemetry, Truth, WireError, unpack
 
 from orchestrator.log.mcap import iter_raw, read_metadata
+from orchestrator.log.plans import plan_positions
 
 __all__ = ["export_ros2", "RosTopics", "MAP_FRAME"]
 
@@ -76,15 +77,13 @@ class RosTopics:
     (orchestrator/view/ros2.py). Times are run times [s]; ``base`` is added to stamps."""
 
     def __init__(self, scenario, keys: Keys, base: float = 0.0) -> None:
-        from orchestrator.view.foxglove import VizBuilder  # noqa: PLC0415  (its plan reading: one definition of a broadcast horizon)
-
         self.keys = keys
         self.base = base
         self.scenario = scenario
-        self.viz = VizBuilder(scenario, keys)
         self.plans: dict[str, np.ndarray] = {}
         self.version: dict[str, int] = {}  # per robot: plans received / plans written
         self.sent_plan: dict[str, int] = {}
+        self._paths = {r.name: scenario.paths.get(r.path) if r.path else None for r in scenario.robots}
 
     def reference_paths(self) -> list[tuple[str, str, dict, float]]:
         out = []
@@ -96,10 +95,9 @@ class RosTopics:
     def feed(self, key: str, rec: Any) -> list[tuple[str, str, dict, float]]:
         """(topic, type, message, run time) of the messages ``rec`` gives rise to."""
         if isinstance(rec, PeerEnvelope):
-            before = self.viz.plans.get(rec.sender)
-            self.viz.feed(key, rec)
-            if self.viz.plans.get(rec.sender) is not before:
-                self.plans[rec.sender] = self.viz.plans[rec.sender]
+            plan = plan_positions(self._paths.get(rec.sender), rec)
+            if plan is not None:
+                self.plans[rec.sender] = plan
                 self.version[rec.sender] = self.version.get(rec.sender, 0) + 1
         elif isinstance(rec, Telemetry):
             plan = rec.data.get("plan")

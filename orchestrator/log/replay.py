@@ -209,7 +209,7 @@ def replay(path: str | pathlib.Path, *, speed: float = 1.0, run_id: str | None =
     if record is not None:
         from copath.wire.keys import Keys  # noqa: PLC0415
 
-        from orchestrator.log.mcap import Recorder  # noqa: PLC0415
+        from orchestrator.log.writer import Recorder  # noqa: PLC0415
 
         new_id = run_id or metadata.get("copath", {}).get("run_id", "replay")
         meta = {k: dict(v) for k, v in metadata.items() if k != "outcome"}

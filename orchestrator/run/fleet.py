@@ -36,7 +36,8 @@ from copath.wire.messages import Event
 from copath.wire.session import SessionConfig, ZenohLink, free_port, loopback_endpoint
 
 from orchestrator.run.failures import FailureReporter
-from orchestrator.log.mcap import Recorder, fault_metadata, read_log, software_version
+from orchestrator.log.mcap import read_log
+from orchestrator.log.writer import Recorder, fault_metadata, software_version
 from orchestrator.analysis.metrics import log_metrics
 from orchestrator.run.progress import Progress
 
@@ -294,7 +295,10 @@ def run_fleet(scenario: Scenario, opts: RunOptions) -> RunOutcome:
     router = ZenohLink.open(SessionConfig(mode="router", listen=tuple(listen), connect=tuple(opts.connect),
                                           lease_ms=round(1e3 * scenario.run.lease_s),
                                           extra=router_extra))
-    recorder = Recorder(out / "run.mcap", keys, metadata, scenario, live=live)
+    recorder = Recorder(out / "run.mcap", keys, metadata)
+    from orchestrator.view.foxglove import RecordedViews  # noqa: PLC0415
+
+    views = RecordedViews(recorder, scenario, live=live)
     router.subscribe_raw(keys.all, recorder.write, attachment=True)  # with each sender's sequence numbers
     if mirror is not None:
         router.subscribe_raw(keys.all, mirror.write)
@@ -508,7 +512,7 @@ def run_fleet(scenario: Scenario, opts: RunOptions) -> RunOutcome:
         router.close()
         if mirror is not None:
             mirror.close()
-        recorder.add_process_logs(out / "logs")
+        views.add_process_logs(out / "logs")
         recorder.finish({"outcome": {"ok": str(ok), "reason": reason}})
         if live is not None:
             tail.stop()

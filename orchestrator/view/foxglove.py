@@ -29,7 +29,8 @@ topic                Foxglove type           content
 
 Messages carry simulated time in their ``timestamp`` fields; the sink decides the log
 time. Sinks: :class:`McapVizSink` writes them as protobuf with Foxglove's schema into the
-run's MCAP (``orchestrator/log/mcap.py``); ``orchestrator/view/live.py`` serves them over the
+run's MCAP (:class:`RecordedViews`, a tap on ``orchestrator/log/writer.py``'s recorder, which
+knows nothing of views); ``orchestrator/view/live.py`` serves them over the
 Foxglove WebSocket protocol. The choice of protobuf over JSON is in ``docs/reference/viewing.md``.
 These channels are derived data, outside the run's key space, and not counted as messages.
 """
@@ -41,7 +42,9 @@ import json
 import math
 import pathlib
 import re
-from typing import Any, Iterator
+import threading
+import time
+from typing import Any, Callable, Iterator
 
 import numpy as np
 import foxglove
@@ -52,7 +55,10 @@ from copath.wire.faults import LinkFaults
 from copath.wire.keys import Keys
 from copath.wire.messages import End, Event, Obs, PeerEnvelope, Telemetry, Truth
 
-__all__ = ["TOPICS", "VizBuilder", "FaultReplay", "McapVizSink", "log_line", "process_log_messages", "foxglove_layout"]
+from orchestrator.log.plans import plan_positions
+
+__all__ = ["TOPICS", "VizBuilder", "FaultReplay", "McapVizSink", "RecordedViews", "views_tap", "log_line",
+           "process_log_messages", "foxglove_layout"]
 
 FRAME = "world"
 
@@ -196,9 +202,7 @@ class VizBuilder:
         self._lost: dict[frozenset, float] = {}  # link -> stamp of its last message lost to faults
         self._angles = None
         if scenario.sensors.enabled:
-            from agent.runtime import sensor_angles  # noqa: PLC0415  (the one definition of the ring)
-
-            self._angles = sensor_angles(scenario.sensors.count)
+            self._angles = scenario.sensors.angles()
 
     # ------------------------------------------------------------------ static
     def static(self) -> list[tuple[str, Any]]:
@@ -236,18 +240,7 @@ class VizBuilder:
 
     def _plan(self, env: PeerEnvelope) -> np.ndarray | None:
         """Predicted horizon of a broadcast plan as (N, 2) positions on the sender's path."""
-        path = self.paths.get(env.sender)
-        if path is None:
-            return None
-        p = env.payload
-        if env.kind == "assumed_traj":  # Algorithm 5.1 step 2: s_hat on the grid t0 + k dt
-            s = np.asarray(p["s_hat"], dtype=float)
-        elif env.kind == "leader_plan":  # Sec. 5.3: s_l and the planned speeds, step delta_l
-            sd = np.asarray(p["sdot_pred"], dtype=float)
-            s = float(p["s_l"]) + np.concatenate([[0.0], np.cumsum(sd) * float(p["delta_l"])])
-        else:
-            return None
-        return path.pos(path.wrap(s) if path.closed else s)
+        return plan_positions(self.paths.get(env.sender), env)
 
     def frame(self, truth: Truth) -> list[tuple[str, Any]]:
         """One frame of every scene view at the truth tick."""
@@ -433,7 +426,7 @@ def foxglove_layout(scenario: Scenario) -> str:
 class McapVizSink:
     """Logs Foxglove messages as protobuf, with the schema (a FileDescriptorSet) that
     ``foxglove-sdk`` ships for each type, on channels of a ``foxglove.Context`` whose MCAP
-    writer is the run's log (``orchestrator/log/mcap.py``)."""
+    writer is the run's log (``orchestrator/log/writer.py``)."""
 
     def __init__(self, context: foxglove.Context) -> None:
         self._ctx = context
@@ -453,3 +446,59 @@ class McapVizSink:
         """Log ``msg`` (caller holds the recorder's lock)."""
         self._channel(topic, msg).log(msg.encode(), log_time=log_time_ns)
         self.count += 1
+
+
+class RecordedViews:
+    """The Foxglove views written into a run's log as it is recorded: a tap on the log's
+    recorder (``orchestrator.log.writer.Recorder.add_tap``), which knows nothing of views.
+    Each record it is fed yields messages, written as protobuf channels of the same MCAP
+    (:class:`McapVizSink`) and handed to ``live`` (``orchestrator/view/live.py``) as well."""
+
+    def __init__(self, recorder, scenario: Scenario, live=None) -> None:
+        self._recorder = recorder
+        self._viz = VizBuilder(scenario, recorder.keys)
+        self.skip = ("/cmd", "/estimate") + (() if scenario.sensors.enabled else ("/obs",))
+        """Records the views never use are not decoded (observations only for range rays)."""
+        self._live = live
+        self._mcap: McapVizSink | None = None
+        self._lock = threading.Lock()  # the builder keeps state across records
+        self._static = self._viz.static()  # written with the first record, at its time
+        recorder.add_tap(self)
+
+    def feed(self, key: str, rec: Any, log_time_ns: int) -> None:
+        with self._lock:
+            if self._static:
+                self._emit(self._static, log_time_ns)
+                self._static = []
+            self._emit(self._viz.feed(key, rec), log_time_ns)
+
+    def _emit(self, msgs, now: int) -> None:
+        """Write Foxglove messages into the log (under its writer's lock), then to the live server."""
+        if not msgs:
+            return
+        with self._recorder.derived() as context:
+            if context is None:  # the log is closed
+                return
+            if self._mcap is None:
+                self._mcap = McapVizSink(context)
+            for topic, msg in msgs:
+                self._mcap.log(topic, msg, now)
+        if self._live is not None:
+            for topic, msg in msgs:
+                self._live.log(topic, msg, now)
+
+    def add_process_logs(self, log_dir: str | pathlib.Path) -> int:
+        """Every line of the processes' logs (``log_dir/*.log``) as ``foxglove.Log`` on
+        ``/viz/log``; returns the number of lines."""
+        if not pathlib.Path(log_dir).is_dir():
+            return 0
+        n = 0
+        for t, msg in process_log_messages(log_dir, time.time_ns()):
+            self._emit([("/viz/log", msg)], t)
+            n += 1
+        return n
+
+
+def views_tap(scenario: Scenario, live=None) -> Callable[[Any], RecordedViews]:
+    """What ``orchestrator.log.writer.write_records(taps=...)`` calls to add the views to a log."""
+    return lambda recorder: RecordedViews(recorder, scenario, live)

@@ -18,7 +18,7 @@ def e55_log(tmp_path_factory):
     """The run log of E5.5 in lockstep, in-process, 32 s (the files and replay tests read it)."""
     from copath.scenario import load_scenario  # noqa: PLC0415
     from orchestrator.run.inprocess import run_scenario  # noqa: PLC0415
-    from orchestrator.log.mcap import write_records  # noqa: PLC0415
+    from orchestrator.log.writer import write_records  # noqa: PLC0415
     from tests.conftest import config  # noqa: PLC0415
 
     scen = load_scenario(config("e5.5-"))

@@ -12,7 +12,8 @@ import pytest
 from copath.scenario import load_scenario
 from copath.wire.faults import windows_between
 from orchestrator.run.inprocess import run_scenario
-from orchestrator.log.mcap import read_log, write_records
+from orchestrator.log.mcap import read_log
+from orchestrator.log.writer import write_records
 from orchestrator.analysis.truth import truth_series
 from tests.conftest import config
 

@@ -9,7 +9,8 @@ import pytest
 
 from copath.wire.keys import Keys
 from copath.wire.session import SessionConfig, ZenohLink, free_port, loopback_endpoint
-from orchestrator.log.mcap import Recorder, iter_raw
+from orchestrator.log.mcap import iter_raw
+from orchestrator.log.writer import Recorder
 from orchestrator.log.replay import parse_wait_for
 
 pytestmark = [pytest.mark.fleet, pytest.mark.timeout(240)]

@@ -18,7 +18,7 @@ from copath.wire.session import free_port
 from orchestrator.run.fleet import RunOptions, run_fleet
 from orchestrator.run.inprocess import run_scenario
 from orchestrator.view.live import LiveViz, serve_log
-from orchestrator.log.mcap import write_records
+from orchestrator.log.writer import write_records
 from orchestrator.view.foxglove import TOPICS
 from tests.conftest import config
 

@@ -9,7 +9,8 @@ import json
 from copath.wire.keys import Keys
 from copath.wire.messages import Command, Stats
 from copath.wire.session import read_seq_attachment, seq_attachment
-from orchestrator.log.mcap import Recorder, read_metadata
+from orchestrator.log.mcap import read_metadata
+from orchestrator.log.writer import Recorder
 
 
 def test_the_attachment_round_trips_and_foreign_ones_are_ignored():

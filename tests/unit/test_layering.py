@@ -79,3 +79,27 @@ def test_studies_never_import_tests():
     files = sorted((REPO / "orchestrator" / "studies").rglob("*.py"))
     assert files
     assert not _offending(files, ("tests",))
+
+
+def test_the_recorder_knows_nothing_of_views():
+    """The log side (``orchestrator/log``: writing, reading, replay, export) never imports the
+    views; the Foxglove views are a tap whoever wants them adds to the recorder."""
+    files = sorted((REPO / "orchestrator" / "log").rglob("*.py"))
+    assert files
+    assert not _offending(files, ("orchestrator.view",))
+
+
+def test_analysis_never_imports_the_agent_runtime_or_the_simulator():
+    """Metrics come from the truth in the log: the analysis reads records, it never runs a
+    robot's runtime or the simulator to get them."""
+    files = sorted((REPO / "orchestrator" / "analysis").rglob("*.py"))
+    assert files
+    assert not _offending(files, ("agent.runtime", "sim"))
+
+
+def test_the_views_take_the_sensor_ring_from_the_library():
+    """The Foxglove views need no robot process: nothing under ``orchestrator/view`` imports
+    the agent runtime (the sensor ring's bearings come from ``copath.scenario``)."""
+    files = sorted((REPO / "orchestrator" / "view").rglob("*.py"))
+    assert files
+    assert not _offending(files, ("agent.runtime",))

@@ -138,7 +138,7 @@ def test_single_robot_has_no_team_figures():
 def test_copath_metrics_recomputes_metrics_json_from_a_log(e55, tmp_path, capsys):
     from copath.wire.keys import Keys
     from orchestrator.cli import main
-    from orchestrator.log.mcap import Recorder
+    from orchestrator.log.writer import Recorder
 
     res = run_scenario(e55, run_id="metrics-from-log")
     raw = dict(e55.raw, _source=e55.source)

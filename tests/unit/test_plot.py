@@ -10,7 +10,7 @@ import pytest
 
 from copath.scenario import load_scenario
 from orchestrator.run.inprocess import run_scenario
-from orchestrator.log.mcap import write_records
+from orchestrator.log.writer import write_records
 from orchestrator.view.plot import FAMILIES, animate_run, applicable, drops, load_run, plot_run
 from tests.conftest import config
 

@@ -19,8 +19,9 @@ from mcap.reader import make_reader
 
 from copath.scenario import load_scenario
 from orchestrator.run.inprocess import run_scenario
-from orchestrator.log.mcap import Recorder, read_log, write_records
-from orchestrator.view.foxglove import TOPICS, process_log_messages
+from orchestrator.log.mcap import read_log
+from orchestrator.log.writer import Recorder, write_records
+from orchestrator.view.foxglove import TOPICS, RecordedViews, process_log_messages, views_tap
 from tests.conftest import config
 
 JSON_SCHEMAS = pathlib.Path(__file__).resolve().parents[1] / "data" / "foxglove_jsonschema"
@@ -103,7 +104,7 @@ def _log(tmp_path_factory, prefix, duration, name, **overrides):
         s = s.with_overrides(**overrides)
     res = run_scenario(s, duration_s=duration, run_id="viz")
     path = tmp_path_factory.mktemp(name) / "run.mcap"
-    write_records(path, res.records, s, "viz")
+    write_records(path, res.records, s, "viz", taps=[views_tap(s)])
     return s, res, path
 
 
@@ -196,10 +197,11 @@ def test_process_logs_become_foxglove_logs(tmp_path, dmpc_faults):
     path = tmp_path / "run.mcap"
     from copath.wire.keys import Keys
 
-    rec = Recorder(path, Keys("viz"), {}, s)
+    rec = Recorder(path, Keys("viz"), {})
+    views = RecordedViews(rec, s)
     for t, key, r in res.records[:50]:
         rec.write(key, r.pack(), log_time_ns=t)
-    assert rec.add_process_logs(logs) == 4
+    assert views.add_process_logs(logs) == 4
     rec.finish()
     viz = _decode_viz(path)
     logged = [(m["name"], m.get("level", "UNKNOWN"), m["message"]) for m in viz["/viz/log"]]
@@ -216,7 +218,8 @@ def test_a_plan_in_telemetry_is_drawn_as_the_robots_horizon(tmp_path):
     s = load_scenario(config("e4.2-"))
     keys = Keys("plan")
     path = tmp_path / "run.mcap"
-    rec = Recorder(path, keys, {}, s)
+    rec = Recorder(path, keys, {})
+    RecordedViews(rec, s)
     plan = [[0.0, 0.0, 0.0], [0.1, 0.0, 0.0], [0.2, 0.05, 0.1]]
     rec.write(keys.telemetry("r1"), Telemetry(0, 0.0, {"ref": [0.0, 0.0, 0.0], "plan": plan}).pack(), 1)
     rec.write(keys.truth, Truth(0, 0.0, ["r1"], [[0.0, 0.0, 0.0]], [[0.0, 0.0, 0.0]], [False], [0.0]).pack(), 2)

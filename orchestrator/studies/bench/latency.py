@@ -8,7 +8,7 @@
    worst agent's p99 and maximum, with the controllers' step time p99 for comparison.
 2. Recorder: a separate publisher process (``ZenohLink`` client, congestion control
    BLOCK) puts ``--messages`` peer envelopes as fast as it can through the run's router
-   into the recorder (``orchestrator/log/mcap.py``), once writing only the log and once
+   into the recorder (``orchestrator/log/writer.py``), once writing only the log and once
    also building the Foxglove views of the E5.4 scenario, as ``copath run`` does.
    Printed: the publisher's rate, the recorder's rate (first to last message received)
    and the messages lost.
@@ -88,7 +88,8 @@ def _recorder(args: argparse.Namespace, root: pathlib.Path, views: bool) -> dict
     from copath.wire.session import SessionConfig, ZenohLink, free_port, loopback_endpoint  # noqa: PLC0415
 
     from orchestrator.run.fleet import REPO_ROOT  # noqa: PLC0415
-    from orchestrator.log.mcap import Recorder  # noqa: PLC0415
+    from orchestrator.log.writer import Recorder  # noqa: PLC0415
+    from orchestrator.view.foxglove import RecordedViews  # noqa: PLC0415
 
     run_id = f"bench-recorder-{int(time.time())}"
     keys = Keys(run_id)
@@ -97,7 +98,9 @@ def _recorder(args: argparse.Namespace, root: pathlib.Path, views: bool) -> dict
     first: list[float] = []
     last = [0.0]
     router = ZenohLink.open(SessionConfig(mode="router", listen=(endpoint,)))
-    recorder = Recorder(root / f"recorder-{views}.mcap", keys, {}, scenario if views else None)
+    recorder = Recorder(root / f"recorder-{views}.mcap", keys, {})
+    if views:
+        RecordedViews(recorder, scenario)
     target = keys.peer_broadcast("r1")
 
     def write(key: str, data: bytes) -> None:

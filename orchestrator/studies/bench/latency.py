@@ -87,7 +87,7 @@ def _recorder(args: argparse.Namespace, root: pathlib.Path, views: bool) -> dict
     from copath.wire.keys import Keys  # noqa: PLC0415
     from copath.wire.session import SessionConfig, ZenohLink, free_port, loopback_endpoint  # noqa: PLC0415
 
-    from orchestrator.run.fleet import REPO_ROOT  # noqa: PLC0415
+    from orchestrator.run.supervisor import REPO_ROOT  # noqa: PLC0415
     from orchestrator.log.writer import Recorder  # noqa: PLC0415
     from orchestrator.view.foxglove import RecordedViews  # noqa: PLC0415
 

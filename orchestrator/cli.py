@@ -16,7 +16,7 @@ Subcommands (``copath --version``; ``--log-level LEVEL`` before or after the sub
     copath scenarios [--json]
     copath validate CONFIG... [--set KEY=VALUE]...
     copath controllers [NAME...]
-    copath bench solve|dmpc|fleet|scale|latency|secure|peers ... [--json]
+    copath bench solve|dmpc|fleet|scale|latency|secure|peers|chaos|compare-metrics ... [--json]
 
 CONFIG is a scenario file, or a bundled scenario by its file stem or its experiment id
 (``copath run e5.5``). Exit codes: 0 done, 1 the run failed, 2 bad input, 3 a target of
@@ -567,7 +567,8 @@ LOG_LEVELS = ("debug", "info", "warning", "error")
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from orchestrator.log.writer import software_version
+    from orchestrator.studies.bench.harness import SUBCOMMANDS  # the table only (standard library imports)
+    from orchestrator.version import software_version
 
     common = argparse.ArgumentParser(add_help=False)
     common.add_argument("--log-level", choices=LOG_LEVELS, default=argparse.SUPPRESS,
@@ -684,7 +685,7 @@ def build_parser() -> argparse.ArgumentParser:
     ct = sub.add_parser("controllers", help="list the controller types (built-in and installed) and their parameters")
     ct.add_argument("names", nargs="*", metavar="NAME", help="only these controller types")
     b = sub.add_parser("bench", help="benchmarks that print figures", add_help=False)
-    b.add_argument("what", choices=("solve", "dmpc", "fleet", "scale", "latency", "secure", "peers"))
+    b.add_argument("what", choices=tuple(SUBCOMMANDS))
     return p
 
 

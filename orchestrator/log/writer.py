@@ -28,7 +28,9 @@ from copath.wire.keys import Keys
 from copath.wire.messages import End, Stats, Truth, WireError, unpack
 from copath.wire.session import read_seq_attachment
 
-__all__ = ["Recorder", "RecordTap", "write_records", "software_version", "fault_metadata"]
+from orchestrator.version import software_version
+
+__all__ = ["Recorder", "RecordTap", "write_records", "fault_metadata"]
 
 
 class RecordTap(Protocol):
@@ -51,15 +53,6 @@ def fault_metadata(scenario) -> dict[str, str]:
     if getattr(scenario, "noise", None) is not None:
         out["noise"] = json.dumps(dataclasses.asdict(scenario.noise))
     return out
-
-
-def software_version() -> str:
-    try:
-        from importlib.metadata import version
-
-        return version("copath")
-    except Exception:
-        return "0+unknown"
 
 
 class Recorder:

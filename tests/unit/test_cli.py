@@ -346,3 +346,23 @@ def test_validate_takes_a_bundled_name_like_run(capsys):
     assert "e5.4-six-robots-lemniscate: ok (e5.4-six-robots-lemniscate, 6 robots" in out
     assert copath(["validate", "e9.9"]) == 2
     assert "expected a scenario file, a bundled scenario's file stem or an experiment id" in capsys.readouterr().err
+
+
+def test_the_command_line_loads_its_subcommands_lazily():
+    """``copath --help`` (the parser built) loads the scenario parser and the API, and none of
+    the run, log, view, analysis or study modules, nor Zenoh, Foxglove, CasADi or Matplotlib:
+    each subcommand imports what it needs when it runs."""
+    import subprocess  # noqa: PLC0415
+    import sys  # noqa: PLC0415
+
+    from tests.conftest import REPO  # noqa: PLC0415
+
+    probe = ("import sys; from orchestrator.cli import build_parser; build_parser(); "
+             "print(' '.join(sorted(sys.modules)))")
+    loaded = set(subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, check=True,
+                                cwd=str(REPO)).stdout.split())
+    heavy = ("orchestrator.run", "orchestrator.log", "orchestrator.view", "orchestrator.analysis",
+             "orchestrator.studies.sweep", "orchestrator.studies.envelope", "zenoh", "foxglove", "casadi",
+             "matplotlib", "agent", "sim")
+    assert "orchestrator.cli" in loaded
+    assert not sorted(m for m in loaded if any(m == h or m.startswith(h + ".") for h in heavy))

@@ -1,10 +1,12 @@
 """Chaos soak (docs/reference/faults.md, "Chaos soak"): a fleet killed, frozen, stalled, silenced and
 partitioned over and over on a seeded schedule, graded from its log.
 
-    python -m orchestrator.studies.bench.chaos [--scenario e5.4-] [--clock realtime|lockstep]
-                               [--policy restart|continue] [--minutes 10] [--faults 40]
-                               [--seed 1] [--kinds kill,stop,stall,silence,partition]
-                               [--burst] [--inprocess] [--out DIR] [--json]
+    copath bench chaos [--scenario e5.4-] [--clock realtime|lockstep]
+                       [--policy restart|continue] [--minutes 10] [--faults 40]
+                       [--seed 1] [--kinds kill,stop,stall,silence,partition]
+                       [--burst] [--inprocess] [--out DIR] [--json]
+
+(or ``python -m orchestrator.studies.bench.chaos`` with the same arguments).
 
 Faults, drawn from ``--seed`` (the same seed gives the same schedule: times, kinds, victims):
 
@@ -484,30 +486,52 @@ def print_table(title: str, result: dict, file=sys.stdout) -> None:
     print("totals: " + ", ".join(f"{k}={v}" for k, v in result["totals"].items()), file=file)
 
 
-def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="orchestrator/studies/bench/chaos.py", description=__doc__.split("\n\n")[0])
+def _kinds(text: str) -> tuple[str, ...]:
+    """``--kinds``: a comma-separated subset of :data:`KINDS`."""
+    kinds = tuple(k.strip() for k in text.split(",") if k.strip())
+    bad = [k for k in kinds if k not in KINDS]
+    if bad or not kinds:
+        raise argparse.ArgumentTypeError(f"--kinds = {bad[0] if bad else text!r} is not allowed; "
+                                         f"allowed: a comma-separated subset of {','.join(KINDS)}")
+    return kinds
+
+
+def _positive(name: str, kind=float):
+    def parse(text: str):
+        try:
+            v = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{name} = {text!r} is not allowed; must be a number > 0") from None
+        if not v > 0:
+            raise argparse.ArgumentTypeError(f"{name} = {text!r} is not allowed; must be > 0")
+        return v
+    return parse
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """The arguments of ``copath bench chaos`` (and ``python -m orchestrator.studies.bench.chaos``)."""
     p.add_argument("--scenario", default="e5.4-", help="scenario file or config prefix [e5.4-]")
     p.add_argument("--clock", choices=("realtime", "lockstep"), default="realtime")
     p.add_argument("--policy", choices=("restart", "continue"), default="restart")
-    p.add_argument("--minutes", type=float, default=10.0)
-    p.add_argument("--faults", type=int, default=40)
+    p.add_argument("--minutes", type=_positive("--minutes"), default=10.0)
+    p.add_argument("--faults", type=_positive("--faults", int), default=40)
     p.add_argument("--seed", type=int, default=1)
-    p.add_argument("--kinds", default=",".join(KINDS), help=f"comma-separated subset of {','.join(KINDS)}")
+    p.add_argument("--kinds", type=_kinds, default=KINDS, help=f"comma-separated subset of {','.join(KINDS)}")
     p.add_argument("--burst", action="store_true", help="Gilbert-Elliott loss bursts on every link, all run")
     p.add_argument("--inprocess", action="store_true", help="one process, lockstep, simulated kills")
     p.add_argument("--out", default=None, help="run directory [a new temporary one]")
     p.add_argument("--json", action="store_true")
     p.add_argument("--regrade", default=None, metavar="RESULT.json",
                    help="grade the run in --out again from its log and this printed --json result")
-    a = p.parse_args(argv)
+
+
+def run(a: argparse.Namespace) -> int:
+    """Run the soak the parsed arguments ``a`` describe; print its table (or JSON)."""
     if a.regrade:
         res = regrade(pathlib.Path(a.out), json.loads(pathlib.Path(a.regrade).read_text()))
         print(json.dumps(res, indent=1, default=str)) if a.json else print_table(f"regraded: {a.out}", res)
         return 0
-    kinds = tuple(k.strip() for k in a.kinds.split(",") if k.strip())
-    bad = [k for k in kinds if k not in KINDS]
-    if bad:
-        p.error(f"--kinds = {bad[0]!r} is not allowed; allowed: {', '.join(KINDS)}")
+    kinds = a.kinds
     clock = "lockstep" if a.inprocess else a.clock
     scen, faults = prepare(a.scenario, clock, a.policy, a.minutes, a.faults, a.seed, kinds, a.burst)
     t0 = time.monotonic()
@@ -528,6 +552,12 @@ def main(argv: list[str] | None = None) -> int:
                     f"seed {a.seed}{', bursts' if a.burst else ''}{', in one process' if a.inprocess else ''}"
                     f" (wall {res['wall_s']} s, load {res['load'][0]:.1f})", res)
     return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="python -m orchestrator.studies.bench.chaos", description=__doc__.split("\n\n")[0])
+    add_arguments(p)
+    return run(p.parse_args(argv))
 
 
 if __name__ == "__main__":

@@ -1,7 +1,9 @@
 """Quality metrics unchanged? Run every bundled scenario in one process and compare key by key.
 
-    python -m orchestrator.studies.bench.compare_metrics run OUT [--scenarios STEM ...]   # metrics of this checkout into OUT
-    python -m orchestrator.studies.bench.compare_metrics compare BEFORE AFTER [--rtol 1e-9] [--atol 1e-12]
+    copath bench compare-metrics run OUT [--scenarios STEM ...]   # metrics of this checkout into OUT
+    copath bench compare-metrics compare BEFORE AFTER [--rtol 1e-9] [--atol 1e-12]
+
+(or ``python -m orchestrator.studies.bench.compare_metrics`` with the same arguments).
 
 ``run`` writes ``OUT/<stem>/metrics.json`` for every ``configs/*.toml`` (``copath run
 <cfg> --inprocess --no-plots -q``), one scenario at a time. Run it on the code before a
@@ -87,8 +89,8 @@ def run_all(out: pathlib.Path, stems: list[str] | None) -> int:
     return 1 if failed else 0
 
 
-def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """The arguments of ``copath bench compare-metrics`` (and ``python -m orchestrator.studies.bench.compare_metrics``)."""
     sub = p.add_subparsers(dest="what", required=True)
     r = sub.add_parser("run", help="run every bundled scenario in one process, metrics into OUT")
     r.add_argument("out", type=pathlib.Path)
@@ -98,15 +100,35 @@ def main(argv: list[str] | None = None) -> int:
     c.add_argument("after", type=pathlib.Path)
     c.add_argument("--rtol", type=float, default=1e-9)
     c.add_argument("--atol", type=float, default=1e-12)
-    args = p.parse_args(argv)
+
+
+def run(args: argparse.Namespace) -> int:
+    """``run``: 0 when every scenario ran; ``compare``: 0 when nothing differs, else 1."""
     if args.what == "run":
+        unknown = sorted(set(args.scenarios or ()) - {c.stem for c in (ROOT / "configs").glob("*.toml")})
+        if unknown:
+            print(f"--scenarios = {unknown[0]!r} is not allowed; allowed: the stems of configs/*.toml "
+                  "(copath scenarios lists them)", file=sys.stderr)
+            return 2
         return run_all(args.out, args.scenarios)
+    for name in ("before", "after"):
+        d = getattr(args, name)
+        if not d.is_dir():
+            print(f"{name} = {str(d)!r} is not allowed; must be a directory of <stem>/metrics.json", file=sys.stderr)
+            return 2
     diffs = compare(args.before, args.after, args.rtol, args.atol)
     for d in diffs:
         print(d)
     n = len(list(args.before.glob("*/metrics.json")))
     print(f"{n} scenarios compared, {len(diffs)} differences (rtol {args.rtol:g}, atol {args.atol:g}; timing keys left out)")
     return 1 if diffs else 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="python -m orchestrator.studies.bench.compare_metrics",
+                                description=__doc__.split("\n")[0])
+    add_arguments(p)
+    return run(p.parse_args(argv))
 
 
 if __name__ == "__main__":

@@ -7,6 +7,8 @@
     copath bench latency  [--robots 16] [--messages 100000] [--json]      neighbour latency, recorder rate
     copath bench secure   [--scenario e5.5] [--reps 3] [--json]           cost of secure mode (lockstep)
     copath bench peers    [--robots 6 16] [--reps 1] [--json]             copath against IR-SIM, alternately
+    copath bench chaos    [--scenario e5.4-] [--minutes 10] [--json]      chaos soak: faults on a seeded schedule
+    copath bench compare-metrics run OUT | compare BEFORE AFTER           in-process metrics key by key
 
 Every subcommand prints a table (or, with ``--json``, one JSON document) and exits 1
 when a run failed. The figures measured on the project's machine, with the machine's
@@ -26,7 +28,7 @@ import tempfile
 import time
 from typing import Any, Callable, Iterator, Sequence
 
-__all__ = ["SUBCOMMANDS", "main", "print_table", "machine", "emit"]
+__all__ = ["SUBCOMMANDS", "main", "parser", "print_table", "machine", "emit"]
 
 SUBCOMMANDS = {
     "solve": "orchestrator.studies.bench.solve",
@@ -36,7 +38,10 @@ SUBCOMMANDS = {
     "latency": "orchestrator.studies.bench.latency",
     "secure": "orchestrator.studies.bench.secure",
     "peers": "orchestrator.studies.bench.peers",
+    "chaos": "orchestrator.studies.bench.chaos",
+    "compare-metrics": "orchestrator.studies.bench.compare_metrics",
 }
+"""``copath bench WHAT``: the module of each subcommand (``add_arguments(parser)``, ``run(args)``)."""
 
 
 def machine() -> dict[str, Any]:
@@ -79,9 +84,17 @@ def emit(args: argparse.Namespace, result: dict[str, Any], table: Callable[[dict
     print(f"({m['cores']} cores, load {m['load_1min']} at {m['time']})")
 
 
-def main(what: str, argv: Sequence[str]) -> int:
-    """Run ``copath bench WHAT`` with its own arguments."""
+def parser(what: str) -> argparse.ArgumentParser:
+    """The argument parser of ``copath bench WHAT``."""
+    if what not in SUBCOMMANDS:
+        raise ValueError(f"copath bench {what!r} is not allowed; allowed: {', '.join(SUBCOMMANDS)}")
     mod = importlib.import_module(SUBCOMMANDS[what])
     p = argparse.ArgumentParser(prog=f"copath bench {what}", description=(mod.__doc__ or "").split("\n")[0])
     mod.add_arguments(p)
-    return int(mod.run(p.parse_args(list(argv))) or 0)
+    return p
+
+
+def main(what: str, argv: Sequence[str]) -> int:
+    """Run ``copath bench WHAT`` with its own arguments."""
+    args = parser(what).parse_args(list(argv))
+    return int(importlib.import_module(SUBCOMMANDS[what]).run(args) or 0)

@@ -77,7 +77,7 @@ class RunOptions:
     lost: an event, a terminal line, the process stopped and the run failed (docs/reference/faults.md)."""
     fork_server: bool = field(default_factory=lambda: os.environ.get("COPATH_FORK_SERVER", "1") != "0")
     """Start the agents by forking a pre-imported launcher (``agent/zygote.py``) instead of
-    one ``python -m agent`` each: the imports are paid once (docs/reference/performance.md, P10).
+    one ``python -m agent`` each: the imports are paid once (docs/journal/performance.md, realtime at 128 robots (P10)).
     ``COPATH_FORK_SERVER=0`` in the environment turns it off."""
 
 

@@ -3,8 +3,8 @@ watching them, the policy on a robot's failure (``run.on_robot_failure``: fail, 
 restart), restarts and their rejoin bound, and stopping them all.
 
 Each child runs in a process group of its own, its output in ``DIR/logs/``. Robots are
-forked from a pre-imported launcher (``agent/zygote.py``, docs/reference/performance.md,
-P10) unless that is turned off; a restart is a fresh process, as a robot rebooting would
+forked from a pre-imported launcher (``agent/zygote.py``; docs/journal/performance.md,
+realtime at 128 robots (P10)) unless that is turned off; a restart is a fresh process, as a robot rebooting would
 be (docs/reference/faults.md)."""
 
 from __future__ import annotations
@@ -94,7 +94,7 @@ class _ForkedProc:
 
 
 class Zygote:
-    """``python -m agent.zygote``: imports once, forks one process per robot (P10)."""
+    """``python -m agent.zygote``: imports once, forks one process per robot (realtime at 128 robots, P10)."""
 
     def __init__(self, scen_path: pathlib.Path, cwd: pathlib.Path) -> None:
         from agent.zygote import TITLE_ROOM, set_subreaper  # noqa: PLC0415

@@ -373,7 +373,8 @@ class AgentNode:
                 self._lockstep_step(obs)
         else:
             # realtime: the newest broadcast matters, a starved receiver loses old ones
-            self.link.drop_when_congested(self.keys.peer_broadcast(self.rt.name), self.keys.peer_direct(self.rt.name, "*"))
+            self.link.drop_when_congested(self.keys.peer_broadcast(self.rt.name),
+                                          self.keys.peer_direct(self.rt.name, "*"))
             _yield_to_simulator()
             waited, told = time.monotonic(), time.monotonic()
             while not self.started.wait(timeout=0.5):

@@ -90,16 +90,16 @@ The derivation, the chosen constants and the guarantee are written out in
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
-from typing import Iterable, Mapping, NamedTuple, Sequence
+from dataclasses import dataclass, field
+from typing import Mapping, NamedTuple, Sequence
 
 import numpy as np
 
 from .config import require
 from .models import OmniModel, UnicycleModel
 
-__all__ = ["SafetyConfig", "Neighbour", "Tube", "TubeSet", "SafetyResult", "SafetyFilter", "SafetyGuard", "max_speed",
-           "max_turn_rate", "prediction_bound", "predict_position", "commit_radius", "plan_velocity"]
+__all__ = ["SafetyConfig", "GuardConfig", "Neighbour", "Tube", "TubeSet", "SafetyResult", "SafetyFilter", "SafetyGuard",
+           "max_speed", "max_turn_rate", "prediction_bound", "predict_position", "commit_radius", "plan_velocity"]
 
 
 @dataclass(frozen=True)
@@ -885,6 +885,36 @@ class SafetyFilter:
         return x[:m], max(float(x[m]), 0.0), ok
 
 
+@dataclass(frozen=True, kw_only=True)
+class GuardConfig:
+    """What one robot's :class:`SafetyGuard` is built from (keyword fields)."""
+
+    safety: SafetyConfig
+    """The scenario's ``[safety]`` table."""
+    name: str
+    """This robot's name."""
+    models: Mapping[str, OmniModel | UnicycleModel] = field(hash=False)
+    """Every robot's model, for footprint radii and speed bounds."""
+    dt: float
+    """Control period [s]."""
+    sensor_count: int = 0
+    """Number of range readings per observation (0 without sensors)."""
+    silent_hold_s: float | None = None
+    """For a robot gone quiet: how long after its last stamp it holds itself still at the
+    latest (cut off: docs/reference/safety.md, "A lost robot"); None, or more than ``max_age_s``
+    (a disc that large is a wall, not a robot), keeps a silent robot as any other,
+    forgotten after ``max_age_s``."""
+    handles_cut_off: frozenset[str] = frozenset()
+    """Robots whose controllers handle being cut off themselves (they may drive on): kept
+    as any other when silent."""
+
+    def __post_init__(self) -> None:
+        require(self.name in self.models, "name", self.name, f"allowed: one of the robots {sorted(self.models)}")
+        require(self.dt > 0, "dt", self.dt, "expected a control period > 0 s")
+        require(self.sensor_count >= 0, "sensor_count", self.sensor_count, "expected 0 or more readings")
+        object.__setattr__(self, "handles_cut_off", frozenset(self.handles_cut_off))
+
+
 class SafetyGuard:
     """One robot's filter plus what it has heard and what it did (pure: ``now`` is passed in).
 
@@ -894,44 +924,29 @@ class SafetyGuard:
 
     Parameters
     ----------
-    config : SafetyConfig
-    name : str
-        This robot's name.
-    models : Mapping[str, OmniModel | UnicycleModel]
-        Every robot's model, for footprint radii and speed bounds.
-    dt : float
-        Control period [s].
-    sensor_count : int
-        Number of range readings per observation (0 without sensors).
-    silent_hold_s : float or None
-        For a robot gone quiet: how long after its last stamp it holds itself still at the
-        latest (cut off: docs/reference/safety.md, "A lost robot"); None, or more than ``max_age_s``
-        (a disc that large is a wall, not a robot), keeps a silent robot as any other,
-        forgotten after ``max_age_s``.
-    own_rule : Iterable[str]
-        Robots whose controllers handle being cut off themselves (they may drive on): kept
-        as any other when silent.
+    config : GuardConfig
     """
 
-    def __init__(self, config: SafetyConfig, name: str, models: Mapping[str, OmniModel | UnicycleModel],
-                 dt: float, sensor_count: int = 0, silent_hold_s: float | None = None,
-                 own_rule: Iterable[str] = ()) -> None:
+    def __init__(self, config: GuardConfig) -> None:
+        self.config = config
+        name, models, dt, sensor_count = config.name, config.models, config.dt, config.sensor_count
+        cfg = config.safety
         self.name = name
         own = models[name]
         # rows per neighbour: omni 6 (stale directions); unicycle 2 (both signs of v), + 1 look-ahead row
         omni = isinstance(own, OmniModel)
-        per_robot = len(_DIRS) if omni else 2 + int(config.lookahead_m > 0)
-        rows = per_robot * (len(models) - 1) + (sensor_count if config.use_ranges else 0) * (1 if omni else 2)
-        self._config = config
-        self._commit = config.commit_accel_mps2 is not None
+        per_robot = len(_DIRS) if omni else 2 + int(cfg.lookahead_m > 0)
+        rows = per_robot * (len(models) - 1) + (sensor_count if cfg.use_ranges else 0) * (1 if omni else 2)
+        self._config = cfg
+        self._commit = cfg.commit_accel_mps2 is not None
         if self._commit:  # one tube row per plan still kept
-            rows += int(math.ceil(config.commit_horizon_s / dt)) + 1
-        self.filter = SafetyFilter(config, own, dt, capacity=rows)
-        cap = config.speed_max_mps
+            rows += int(math.ceil(cfg.commit_horizon_s / dt)) + 1
+        self.filter = SafetyFilter(cfg, own, dt, capacity=rows)
+        cap = cfg.speed_max_mps
         self._bounds = {n: (m.radius, max_speed(m) if cap is None else min(cap, max_speed(m)),
-                            0.0 if isinstance(m, OmniModel) else float(config.lookahead_m))
+                            0.0 if isinstance(m, OmniModel) else float(cfg.lookahead_m))
                         for n, m in models.items()}
-        self._accel = config.accel_max_mps2
+        self._accel = cfg.accel_max_mps2
         # enforced limits of each robot's model: (a_max, alpha_max, yaw-rate bound)
         self._limits = {n: (m.a_max, m.alpha_max, max_turn_rate(m)) for n, m in models.items()}
         self._dt = float(dt)
@@ -961,9 +976,9 @@ class SafetyGuard:
         """Robots lost (held still by the simulator) and when this robot first knew it [s]."""
         self._back_at: dict[str, float] = {}
         """Of those, the ones back (no longer lost, not heard since) and when this robot knew [s]."""
-        self._silent_hold = (float(silent_hold_s) if silent_hold_s is not None and silent_hold_s <= config.max_age_s
-                             else None)
-        self._own_rule = frozenset(own_rule)
+        hold = config.silent_hold_s
+        self._silent_hold = float(hold) if hold is not None and hold <= cfg.max_age_s else None
+        self._own_rule = config.handles_cut_off
         self._quiet: set[str] = set()
         """Of :attr:`_lost_at`, the robots lost by silence (they hold themselves still, cut off)."""
 
@@ -1032,6 +1047,12 @@ class SafetyGuard:
         # the rows on the command do not see
         radius = cfg.commit_radius_m + cfg.commit_speed_mps * t + 0.5 * cfg.commit_accel_mps2 * t**2
         return TubeSet(centre, velocity, radius - TUBE_MARGIN_M, cfg.commit_speed_mps + cfg.commit_accel_mps2 * tau)
+
+    @property
+    def silent_hold_s(self) -> float | None:
+        """How long after its last stamp a robot gone quiet is kept as held still [s]: the
+        config's ``silent_hold_s``, None when that is None or longer than ``max_age_s``."""
+        return self._silent_hold
 
     def hear(self, sender: str, position, stamp: float, velocity=None) -> None:
         """Remember the newest position (and world velocity (xdot, ydot, thetadot), when the

@@ -233,13 +233,13 @@ def test_six_robots_coordinate_at_one_second_delay_and_half_lost_with_committed_
 def test_a_committed_neighbour_is_a_small_disc_on_its_arc_and_the_promise_is_validated():
     from copath.config import ConfigError
     from copath.models import UnicycleModel
-    from copath.safety import SafetyConfig, SafetyGuard, commit_radius, predict_position
+    from copath.safety import GuardConfig, SafetyConfig, SafetyGuard, commit_radius, predict_position
 
     with pytest.raises(ConfigError, match=r"safety.commit_accel_mps2 = -0.1 is not allowed"):
         SafetyConfig(enabled=True, commit_accel_mps2=-0.1)
     cfg = SafetyConfig(enabled=True, commit_accel_mps2=0.1)
     models = {n: UnicycleModel(a_max=0.3, alpha_max=1.0) for n in ("a", "b")}
-    guard = SafetyGuard(cfg, "a", models, 0.1)
+    guard = SafetyGuard(GuardConfig(safety=cfg, name="a", models=models, dt=0.1))
     vel = (0.2, 0.0, 0.1)
     guard.hear("b", (1.0, 0.0), 0.0, vel)
     for age in (0.5, 1.5, 2.4):
@@ -263,13 +263,14 @@ def test_a_lost_robot_held_still_is_a_static_disc_passed_and_not_forgotten():
     stopped (SafetyGuard._held; docs/reference/safety.md, "A lost robot"), so a goes round it without
     touching it, and comes close. Before, b was forgotten after max_age_s and a drove into it."""
     from copath.models import OmniModel, integrate_body_velocity
-    from copath.safety import SafetyConfig, SafetyGuard
+    from copath.safety import GuardConfig, SafetyConfig, SafetyGuard
 
     dt = 0.1
     model = OmniModel()  # E5.1's robots
     models = {"a": model, "b": model}
     r = model.radius
-    guard = SafetyGuard(SafetyConfig(enabled=True, accel_max_mps2=1.5), "a", models, dt)
+    guard = SafetyGuard(GuardConfig(safety=SafetyConfig(enabled=True, accel_max_mps2=1.5), name="a", models=models,
+                                    dt=dt))
     vel_b = (0.4, 0.0, 0.0)
     for k in range(11):  # b's messages, t = 0 .. 1 s
         guard.hear("b", (0.4 * k * dt, 0.0), k * dt, vel_b)

@@ -64,7 +64,7 @@ def test_a_robot_that_never_heard_anyone_is_not_cut_off():
 def test_the_roles_controller_handles_being_cut_off_itself():
     roles = load_scenario(config("e6.3-"))
     assert all(handles_cut_off(roles, n) for n in roles.robot_names)
-    assert not RobotRuntime(roles, roles.robot_names[0], KEYS)._holds
+    assert not RobotRuntime(roles, roles.robot_names[0], KEYS).cut_off_rule.holds
     e55 = load_scenario(config("e5.5-"))
     assert not any(handles_cut_off(e55, n) for n in e55.robot_names)
 
@@ -80,7 +80,7 @@ def test_run_cut_off_drive_lets_a_cut_off_robot_drive_on_and_its_silence_be_forg
     scen = load_scenario(config("e5.5-"))
     scen = dataclasses.replace(scen, run=dataclasses.replace(scen.run, cut_off="drive"))
     rts = {n: RobotRuntime(scen, n, KEYS) for n in ("r2", "r3")}
-    assert not rts["r3"]._holds and rts["r3"].safety._silent_hold is None
+    assert not rts["r3"].cut_off_rule.holds and rts["r3"].safety.guard.silent_hold_s is None
     poses = {r.name: list(r.pose) for r in scen.robots}
     dt, moving = scen.run.dt, []
     for k in range(40):

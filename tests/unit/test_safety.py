@@ -9,7 +9,7 @@ import pytest
 
 from copath.config import ConfigError, from_table
 from copath.models import OmniModel, UnicycleModel
-from copath.safety import Neighbour, SafetyConfig, SafetyFilter, SafetyGuard, max_speed
+from copath.safety import GuardConfig, Neighbour, SafetyConfig, SafetyFilter, SafetyGuard, max_speed
 
 CFG = SafetyConfig(enabled=True)
 
@@ -149,7 +149,7 @@ def test_barriers_inflate_stale_neighbours():
 
 def test_guard_keeps_newest_position_and_counts():
     models = {"a": OmniModel(), "b": OmniModel()}
-    g = SafetyGuard(CFG, "a", models, 0.1)
+    g = SafetyGuard(GuardConfig(safety=CFG, name="a", models=models, dt=0.1))
     g.hear("b", [0.5, 0.0], 1.0)
     g.hear("b", [5.0, 0.0], 0.5)  # older message arriving late is ignored
     (nb,) = g.neighbours(1.2)
@@ -177,13 +177,15 @@ def test_config_errors_name_key_value_and_rule():
 
 def test_guard_extrapolates_with_an_acceleration_bound():
     models = {"a": OmniModel(), "b": OmniModel()}
-    g = SafetyGuard(SafetyConfig(enabled=True, accel_max_mps2=1.0, speed_max_mps=2.0), "a", models, 0.1)
+    g = SafetyGuard(GuardConfig(safety=SafetyConfig(enabled=True, accel_max_mps2=1.0, speed_max_mps=2.0), name="a",
+                                models=models, dt=0.1))
     g.hear("b", [1.0, 0.0], 0.0)
     g.hear("b", [1.05, 0.0], 0.1)  # 0.5 m/s along x
     (nb,) = g.neighbours(0.3)
     # extrapolated 0.2 s ahead, spread 1.0 * (0.3 - 0.0) * 0.2 = 0.06 m instead of 2.0 * 0.2 = 0.4 m
     assert nb.position == pytest.approx((1.15, 0.0)) and nb.spread == pytest.approx(0.06)
-    g1 = SafetyGuard(SafetyConfig(enabled=True, speed_max_mps=2.0), "a", models, 0.1)
+    g1 = SafetyGuard(GuardConfig(safety=SafetyConfig(enabled=True, speed_max_mps=2.0), name="a", models=models,
+                                 dt=0.1))
     g1.hear("b", [1.0, 0.0], 0.0)
     g1.hear("b", [1.05, 0.0], 0.1)
     (nb1,) = g1.neighbours(0.3)
@@ -390,7 +392,7 @@ def test_prediction_bound_holds_for_a_neighbour_at_its_limits(kind, seed):
 def test_guard_predicts_a_neighbour_with_its_sent_velocity_and_enforced_limit():
     lim = UnicycleModel(v_max=0.5, omega_max=1.0, a_max=0.3, alpha_max=1.0)
     models = {"a": lim, "b": lim, "c": UnicycleModel(v_max=0.5, omega_max=1.0)}
-    g = SafetyGuard(SafetyConfig(enabled=True), "a", models, 0.1)
+    g = SafetyGuard(GuardConfig(safety=SafetyConfig(enabled=True), name="a", models=models, dt=0.1))
     g.hear("b", [1.0, 0.0], 0.0, [0.2, 0.0, 0.0])  # limited: predicted along its velocity
     g.hear("c", [0.0, 1.0], 0.0, [0.2, 0.0, 0.0])  # no declared limit: the speed bound as before
     nb_b, nb_c = g.neighbours(1.0)
@@ -467,7 +469,7 @@ def test_vectorised_tubes_and_predictions_are_the_scalar_ones_bit_for_bit():
     cfg = SafetyConfig(enabled=True, commit_accel_mps2=0.2, commit_speed_mps=0.05)
     dt = 0.1
     models = {"a": UnicycleModel(a_max=0.3, alpha_max=1.0), "b": UnicycleModel(a_max=0.3, alpha_max=1.0)}
-    g = SafetyGuard(cfg, "a", models, dt)
+    g = SafetyGuard(GuardConfig(safety=cfg, name="a", models=models, dt=dt))
     rng = np.random.default_rng(7)
     plans = []
     for k in range(40):
@@ -517,7 +519,7 @@ def test_a_silent_robot_is_held_as_a_static_disc_until_heard_again():
     may have driven by then, not forgotten with age; heard again, an ordinary neighbour."""
     models = {"a": OmniModel(), "b": OmniModel(), "c": OmniModel()}
     cfg = SafetyConfig(enabled=True, speed_max_mps=1.0)
-    g = SafetyGuard(cfg, "a", models, 0.1, silent_hold_s=1.3, own_rule=("c",))
+    g = SafetyGuard(GuardConfig(safety=cfg, name="a", models=models, dt=0.1, silent_hold_s=1.3, handles_cut_off={"c"}))
     g.hear("b", (2.0, 0.0), 5.0)
     g.hear("c", (0.0, 2.0), 5.0)
     g.apply((0.0, 0.0, 0.0), [0.0, 0.0, 0.0], 6.1, silent={"b", "c"})
@@ -532,7 +534,7 @@ def test_a_silent_robot_is_held_as_a_static_disc_until_heard_again():
     nb = next(nb for nb in g.neighbours(20.1) if nb.position == (2.5, 0.0))
     assert nb.age == pytest.approx(0.05) and nb.radius == models["b"].radius
     # without silent_hold_s (or above max_age_s) a silent robot is forgotten as before
-    g2 = SafetyGuard(cfg, "a", models, 0.1, silent_hold_s=2.5)
+    g2 = SafetyGuard(GuardConfig(safety=cfg, name="a", models=models, dt=0.1, silent_hold_s=2.5))
     g2.hear("b", (2.0, 0.0), 5.0)
     g2.apply((0.0, 0.0, 0.0), [0.0, 0.0, 0.0], 6.1, silent={"b"})
     assert not [nb for nb in g2.neighbours(9.0) if nb.age <= cfg.max_age_s]

@@ -1,0 +1,60 @@
+"""Stage "detour": the controller sees its pose moved back onto its lane while a detour round
+a blocked stretch is under way (docs/reference/detours.md, "The method"; the planner is
+:class:`copath.detour.DetourPlanner`)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from copath.control import PeerMessage
+from copath.detour import DetourPlanner
+from copath.scenario import Scenario
+from copath.wire.messages import Event
+
+from .liveness import LivenessStage
+from .safety import SafetyStage
+
+__all__ = ["DetourStage"]
+
+
+class DetourStage:
+    """One robot's detour stage (active only with a :attr:`planner`: a robot that follows a
+    path, with ``[safety] detours`` on and a controller that does not avoid obstacles itself).
+
+    Reads: the robot's pose, its range ring, the other robots' discs (the safety filter's
+    neighbours when it runs: a lost robot is its held disc; else the positions heard in the
+    inbox) and whether the robot is held still.
+    Writes: the pose the controller sees, the lane's shift (telemetry ``detour_offset``) and
+    ``detour_start`` / ``detour_end`` events."""
+
+    name = "detour"
+
+    def __init__(self, scenario: Scenario, name: str, planner: DetourPlanner | None) -> None:
+        self.robot = name
+        self.planner = planner
+        self._radii = {r.name: r.model.radius for r in scenario.robots}
+        self._positions: dict[str, tuple[float, float, float]] = {}
+        """Without the safety filter: the last position each peer sent, and its stamp."""
+
+    def step(self, now: float, pose: np.ndarray, ranges, angles, inbox: list[PeerMessage], events: list[Event],
+             held: bool, liveness: LivenessStage, safety: SafetyStage | None) -> tuple[np.ndarray, float]:
+        """The pose the controller sees and the lane's shift; the stage's events are appended
+        to ``events``. A robot the runtime holds still (cut off) plans nothing."""
+        if self.planner is None or held:
+            return pose, 0.0
+        planner, peers = self.planner, []
+        if safety is not None and (ranges is not None or liveness.lost or liveness.quiet_for_filter(now)
+                                   or planner.plan is not None or planner.stalled(now)):
+            for nb in safety.guard.neighbours(now):  # held discs, and live ones to tell teammates in the ring
+                spread = nb.spread if nb.spread is not None else nb.speed_max * nb.age
+                peers.append((nb.position[0], nb.position[1], nb.radius + (0.0 if nb.held else spread), nb.held))
+        else:
+            for m in inbox:
+                if m.position is not None:
+                    self._positions[m.sender] = (m.position[0], m.position[1], m.stamp)
+            for r, (x, y, stamp) in self._positions.items():
+                spread = min(0.5 * max(now - stamp, 0.0), 0.5)
+                peers.append((x, y, self._radii.get(r, 0.0) + spread, r in liveness.lost))
+        out = planner.step(now, pose, ranges, angles, peers)
+        events += [Event(float(now), self.robot, what, detail) for what, detail in out.events]
+        return out.pose, out.offset

@@ -1,0 +1,110 @@
+"""Stage "safety": the decentralised safety filter between the controller and the wheels
+(docs/reference/safety.md; :class:`copath.safety.SafetyGuard`).
+
+With ``[safety] overhear`` (the default) the filter is fed with the sender position of every
+peer envelope the robot overhears, through fault streams of its own (another seed), so the
+controller's messages are the same with or without the filter; without it, with those of
+the controller's inbox."""
+
+from __future__ import annotations
+
+import time
+from typing import Iterable
+
+import numpy as np
+
+from copath.safety import GuardConfig, SafetyGuard
+from copath.scenario import Scenario
+from copath.wire.faults import FaultyInbox, LinkFaults
+from copath.wire.keys import Keys
+from copath.wire.messages import PeerEnvelope
+
+from .counters import Counters
+from .cut_off import CutOffRule
+from .faults import FaultStage
+from .liveness import LivenessStage
+from .trust import TrustStage
+
+__all__ = ["SafetyStage", "OVERHEAR_SEED"]
+
+OVERHEAR_SEED = 7919
+"""Offset of the seed of the safety filter's own fault streams (independent of the controller's)."""
+
+
+class SafetyStage:
+    """One robot's safety filter and what feeds it.
+
+    Reads: overheard envelopes (:meth:`overhear`) or the inbox's (:meth:`hear`), the robot's
+    pose, range ring and command, the robots lost or gone quiet (the liveness stage).
+    Writes: the command (unless the robot is held still: the others keep out of its disc),
+    telemetry ``safety_active``, ``safety_change``, ``safety_ms``, the liveness stage's
+    overheard times, and the filter's counters in the closing account."""
+
+    name = "safety"
+
+    def __init__(self, scenario: Scenario, name: str, rule: CutOffRule, trust: TrustStage, faults: FaultStage,
+                 counters: Counters, listened: frozenset[str]) -> None:
+        self.robot = name
+        self.guard = SafetyGuard(GuardConfig(
+            safety=scenario.safety, name=name, models={r.name: r.model for r in scenario.robots}, dt=scenario.run.dt,
+            sensor_count=scenario.sensors.count if scenario.sensors.enabled else 0,
+            silent_hold_s=rule.silent_hold_s, handles_cut_off=rule.handled_by_controller))
+        self._overhear = (FaultyInbox(LinkFaults(scenario.network, scenario.run.seed + OVERHEAR_SEED, name))
+                          if scenario.safety.overhear else None)
+        self._trust = trust
+        self._faults = faults
+        self._counters = counters
+        self._listened = listened
+        """Senders whose envelopes also reach the robot's inbox (whose trust stage counts their bad stamps)."""
+
+    @property
+    def overhearing(self) -> bool:
+        """Whether the filter is fed by overhearing (``safety.overhear``)."""
+        return self._overhear is not None
+
+    def overhear_subscriptions(self, keys: Keys) -> list[str]:
+        """Keys whose envelopes go to :meth:`overhear` (every robot's messages; none without overhearing)."""
+        if self._overhear is None:
+            return []
+        return [keys.peer_broadcast("*"), keys.peer_direct("*", "*")]
+
+    def overhear(self, env: PeerEnvelope) -> None:
+        """Accept an overheard envelope: only its sender's position and stamp are used.
+
+        Before the first step there is no clock to check a stamp against, so nothing is
+        overheard (the filter needs current positions, not ones from before a restart). A
+        neighbour's envelope also reaches the inbox, whose check counts a bad stamp; here
+        only the others' are counted, so one bad message is one reject."""
+        if self._overhear is None or env.sender == self.robot or not self._trust.started:
+            return
+        if self._trust.admit(env, "overheard", record=env.sender not in self._listened):
+            self._counters.add("overheard")
+            self._overhear.push(env.sender, env.stamp, env)
+
+    def hear(self, envelopes: Iterable[PeerEnvelope]) -> None:
+        """Without overhearing: the envelopes the controller's inbox got at this instant."""
+        if self._overhear is None:
+            for env in envelopes:
+                self.guard.hear(env.sender, env.pos, env.stamp, env.vel)
+
+    def apply(self, now: float, pose: np.ndarray, command: list[float], ranges, angles, held: bool,
+              telemetry: dict, liveness: LivenessStage) -> list[float]:
+        """The filtered command at ``now`` (the command itself when ``held``: the others keep
+        out of a held robot's disc)."""
+        t0 = time.perf_counter()
+        for env in self._overhear.pop_ready(now) if self._overhear is not None else ():
+            liveness.overheard(env.sender, now)
+            if self._faults.in_range(env, pose):
+                self.guard.hear(env.sender, env.pos, env.stamp, env.vel)
+        res = self.guard.apply(pose, command, now, ranges, angles, liveness.lost, liveness.quiet_for_filter(now))
+        if not held:
+            command = [float(c) for c in res.command]
+        telemetry.update(safety_active=res.active, safety_change=res.change, safety_ms=(time.perf_counter() - t0) * 1e3)
+        return command
+
+    def published(self, now: float, pose: np.ndarray, velocity: list[float]) -> None:
+        """This robot published envelopes at ``now`` (committed plans: the filter keeps what it promised)."""
+        self.guard.published(now, pose, velocity)
+
+    def counters(self) -> dict:
+        return self.guard.counters()

@@ -274,3 +274,27 @@ def test_the_json_schemas_reject_what_foxglove_would_not_read():
     with pytest.raises(AssertionError, match="not in foxglove.SceneEntity"):
         _declared({"deletions": [], "entities": [{"colour": 1}]}, js)
     assert fm.SceneUpdate.get_schema().name == schema.name
+
+
+def test_the_views_are_added_beside_the_run_records_which_they_leave_unchanged(tmp_path):
+    """The recorder knows nothing of views: without a tap the log holds the run's channels
+    only; with the Foxglove views added (what ``copath run`` composes) it holds the same run
+    messages, byte for byte and at the same times, and the ``/viz`` channels beside them."""
+    s = load_scenario(config("e5.5-column-box"))  # range sensors on: the ray view too
+    res = run_scenario(s, duration_s=2.0, run_id="taps")
+    plain = write_records(tmp_path / "plain.mcap", res.records, s, "taps", origin_ns=0)
+    viewed = write_records(tmp_path / "viewed.mcap", res.records, s, "taps", origin_ns=0, taps=[views_tap(s)])
+
+    def messages(path):
+        with open(path, "rb") as fh:
+            return [(c.topic, c.message_encoding, m.log_time, m.data)
+                    for _, c, m in make_reader(fh).iter_messages(log_time_order=True)]
+
+    run_only = messages(plain)
+    both = messages(viewed)
+    assert run_only and all(enc == "msgpack" for _, enc, _, _ in run_only)
+    assert [m for m in both if m[1] == "msgpack"] == run_only
+    views = {topic for topic, enc, _, _ in both if enc == "protobuf"}
+    assert views == {"/viz/scene", "/viz/robots", "/viz/plans", "/viz/formation", "/viz/ranges", "/viz/links",
+                     "/viz/events"}  # the end of the run
+    assert read_log(plain).metadata == read_log(viewed).metadata

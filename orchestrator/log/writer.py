@@ -83,15 +83,24 @@ class Recorder:
         self.count = 0
         self.count_by_key: dict[str, int] = {}
         self.last_cmd_ns: dict[str, int] = {}
+        """Receive time [ns] of each robot's newest command."""
+        self.first_cmd_ns: dict[str, int] = {}
+        """Receive time [ns] of each robot's first command since :meth:`expect_commands`
+        (0 while none came): when a restarted robot commanded again."""
         self.accounts: dict[tuple[str, int], dict] = {}
         """Per (sender, incarnation): records received, first and last sequence number, the
         numbers missing (gaps), and the closing account's ``published`` when one came."""
-        """Receive time [ns] of each robot's newest command."""
         self.sim_t = 0.0
         self.stats: dict[str, Stats] = {}
         self.end: End | None = None
         self._closed = False
         self._taps: list[RecordTap] = []
+
+    def expect_commands(self, robot: str) -> None:
+        """Note the receive time of ``robot``'s next command in :attr:`first_cmd_ns` (a
+        restart: the supervisor measures its rejoin from it, not from whenever it looks)."""
+        with self._lock:
+            self.first_cmd_ns[robot] = 0
 
     def add_tap(self, tap: RecordTap) -> None:
         """Feed ``tap`` every record written from now on (before the first record: all of them)."""
@@ -124,7 +133,10 @@ class Recorder:
             self.count += 1
             self.count_by_key[key] = self.count_by_key.get(key, 0) + 1
             if rel.endswith("/cmd"):  # robot/<name>/cmd: when each robot last commanded (a restart's rejoin)
-                self.last_cmd_ns[rel.split("/")[1]] = now
+                robot = rel.split("/")[1]
+                self.last_cmd_ns[robot] = now
+                if self.first_cmd_ns.get(robot) == 0:
+                    self.first_cmd_ns[robot] = now
             ch.log(data, now)  # sequence: the channel's count, from 1
         # light decoding for progress and the closing account (and for the taps that read the record)
         taps = [t for t in self._taps if not rel.endswith(t.skip)]

@@ -236,6 +236,7 @@ class Supervisor:
         child = self._zygote.spawn(name, argv, log) if self._zygote is not None else None
         child = child or spawn(name, [sys.executable, "-m", "agent", *argv], log, self.out / "logs")
         if restarts:
+            self.log.expect_commands(name)
             self.rejoining[name] = time.time_ns()
         return child
 
@@ -264,20 +265,24 @@ class Supervisor:
         """A restarted robot commands again within ``rejoin_timeout_s`` of its process
         start, or it is lost: event, terminal line, process stopped (docs/reference/faults.md)."""
         for name, t_ns in list(self.rejoining.items()):
-            last = self.log.last_cmd_ns.get(name, 0)
-            if last > t_ns:
+            # the first command's receive time, not the time of this look: a restart that
+            # commands after the bound is late however soon the supervisor looks
+            first = self.log.first_cmd_ns.get(name, 0)
+            came = first > t_ns
+            waited = ((first if came else time.time_ns()) - t_ns) / 1e9
+            if came and waited <= self.rejoin_timeout_s:
                 del self.rejoining[name]
-                logger.info("robot %s commands again %.2f s after its restart", name, (last - t_ns) / 1e9)
+                logger.info("robot %s commands again %.2f s after its restart", name, waited)
                 continue
-            waited = (time.time_ns() - t_ns) / 1e9
-            if waited < self.rejoin_timeout_s:
+            if not came and waited < self.rejoin_timeout_s:
                 continue
             del self.rejoining[name]
             self.never_back.append(name)
             self.gone.add(name)
             log_file = self.out / "logs" / f"{name}.restart{self.restarts[name]}.log"
-            msg = (f"robot {name} sent no command {waited:.1f} s after its restart (bound "
-                   f"{self.rejoin_timeout_s:g} s); it is lost, see {log_file}")
+            late = f"; its first came {waited:.2f} s after" if came else ""
+            msg = (f"robot {name} sent no command within {self.rejoin_timeout_s:g} s of its restart "
+                   f"(the bound{late}); it is lost, see {log_file}")
             print(f"copath run: {msg}", file=sys.stderr, flush=True)
             logger.error(msg)
             self.log.write(self.keys.event("orchestrator"), Event(float(self.log.sim_t), "orchestrator", "rejoin_timeout", {

@@ -106,10 +106,11 @@ def test_a_killed_robot_restarts_and_commands_again_in_one_process():
 
 
 @pytest.mark.fleet
-@pytest.mark.slow  # timing-dependent: passed, then once ran ok (the restart beat the bound) on 2026-12-01; to be made robust
 def test_a_restarted_robot_past_the_rejoin_bound_fails_the_run_loudly(tmp_path, capfd):
     """A bound too short for any restart: the robot is lost, with an event, a terminal line,
-    and ``ok: false`` naming it."""
+    and ``ok: false`` naming it. The bound is measured to the first command's receipt, so a
+    fast restart the supervisor happens to see only later is late all the same (once, when
+    the supervisor compared the time of its look instead, the run came out ok)."""
     from copath.scenario import load_scenario
     from orchestrator.run.fleet import RunOptions, run_fleet
 

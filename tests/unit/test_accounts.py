@@ -44,3 +44,21 @@ def test_gaps_late_records_kills_and_restarts_are_accounted(tmp_path):
     meta = {k: json.loads(v) for k, v in read_metadata(tmp_path / "run.mcap")["accounts"].items()}
     assert sorted(a["sender"] for a in meta.values()) == ["r1", "r2", "r2"]
     assert sum(a["missing"] for a in meta.values()) == 1
+
+
+def test_a_restart_is_timed_to_its_first_command_not_to_when_someone_looks(tmp_path):
+    # the supervisor's rejoin bound (docs/reference/faults.md) reads first_cmd_ns: the receive
+    # time of the first command after expect_commands, kept however many commands follow
+    keys = Keys("rejoin")
+    rec = Recorder(tmp_path / "run.mcap", keys, {"copath": {"run_id": "rejoin"}})
+    cmd = Command(0, 0.0, [0.0, 0.0]).pack()
+    rec.write(keys.cmd("r2"), cmd, log_time_ns=1_000)
+    assert "r2" not in rec.first_cmd_ns  # nothing expected: not noted
+    rec.expect_commands("r2")
+    assert rec.first_cmd_ns["r2"] == 0
+    rec.write(keys.cmd("r1"), cmd, log_time_ns=2_000)  # another robot's command does not count
+    assert rec.first_cmd_ns["r2"] == 0
+    for t in (3_000, 4_000, 5_000):
+        rec.write(keys.cmd("r2"), cmd, log_time_ns=t)
+    assert rec.first_cmd_ns["r2"] == 3_000 and rec.last_cmd_ns["r2"] == 5_000
+    rec.finish()

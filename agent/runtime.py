@@ -32,7 +32,6 @@ and faults, and :meth:`RobotRuntime.overhear` each overheard one through trust t
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -51,7 +50,7 @@ from .stages import (STAGE_ORDER, ControlStage, Counters, CutOffRule, DetourStag
 from .stages.cut_off import silent_hold_s
 
 __all__ = ["RobotRuntime", "StepOutput", "Counters", "STAGE_ORDER", "handles_cut_off", "handles_obstacles",
-           "sensor_angles", "silent_hold_s"]
+           "silent_hold_s"]
 
 
 def handles_cut_off(scenario: Scenario, name: str) -> bool:
@@ -107,11 +106,6 @@ def detour_planner(scenario: Scenario, name: str) -> DetourPlanner | None:
                          DetourConfig(margin_m=scenario.safety.margin_m, stall_detours=not ruled))
 
 
-def sensor_angles(count: int) -> np.ndarray:
-    """Bearings of a ring of ``count`` range sensors, from 0 rad counter-clockwise."""
-    return 2 * math.pi * np.arange(count) / count
-
-
 @dataclass
 class StepOutput:
     command: Command
@@ -143,7 +137,7 @@ class RobotRuntime:
         """Peer envelopes that arrived from each sender, refused ones included (the lockstep barrier)."""
         self.cut_off_rule = CutOffRule.for_robot(scenario, name, handles_cut_off)
         controller = build_controller(spec.controller, RobotContext.for_robot(scenario, name))
-        self._angles = sensor_angles(scenario.sensors.count) if scenario.sensors.enabled else None
+        self._angles = scenario.sensors.angles() if scenario.sensors.enabled else None
         self._max_range = scenario.sensors.max_range_m if self._angles is not None else 0.0
         self._team = frozenset(scenario.robot_names) - {name}
         self._last_cmd = [0.0] * spec.model.command_size

@@ -64,7 +64,7 @@ class World:
             profile = scenario.sensing.profile_for(r.name, r.model.kind)
             if not profile.ideal:
                 self.sensing[r.name] = RobotSensors(profile, r.model, scenario.run.seed, i, r.pose)
-        self._angles = 2 * math.pi * np.arange(self.sensors.count) / self.sensors.count
+        self._angles = self.sensors.angles()
         self._obstacles = []
         if scenario.obstacles or self.sensors.enabled:
             from sim import geometry  # noqa: PLC0415  (only worlds with obstacles/sensors need it)

@@ -54,27 +54,27 @@ __all__ = ["RobotRuntime", "StepOutput", "Counters", "STAGE_ORDER", "handles_cut
 
 
 def handles_cut_off(scenario: Scenario, name: str) -> bool:
-    """Whether robot ``name``'s controller handles being cut off itself: its parameter
-    dataclass says so (``handles_cut_off = True``, a class constant; the roles controller,
-    docs/reference/ambiguities.md, robot lost in role assignment (A38)). Read from the scenario, so every robot knows it of every other;
-    the class is enough (parsing every robot's parameters cost each runtime 0.46 ms per role
+    """Whether robot ``name``'s controller handles being cut off itself: its family's factory
+    declares it (``handles_cut_off``; the roles family, docs/reference/ambiguities.md, robot lost
+    in role assignment (A38)). Read from the scenario, so every robot knows it of every other; the
+    declaration is enough (parsing every robot's parameters cost each runtime 0.46 ms per role
     robot, N^2 over a fleet)."""
     try:
         factory = resolve_controller(scenario.robot(name).controller)
     except ConfigError:  # reported where that robot's controller is built
         return False
-    return bool(getattr(factory.config, "handles_cut_off", False))
+    return factory.handles_cut_off
 
 
 def handles_obstacles(scenario: Scenario, name: str) -> bool:
-    """Whether robot ``name``'s controller avoids obstacles itself (``handles_obstacles = True``
-    on its parameter class: the unicycle NMPC's constraints, Sec. 4.4.3); the runtime's detour
+    """Whether robot ``name``'s controller avoids obstacles itself (its family's factory declares
+    ``handles_obstacles``: the unicycle NMPC's constraints, Sec. 4.4.3); the runtime's detour
     stage then leaves it alone (docs/reference/detours.md)."""
     try:
         factory = resolve_controller(scenario.robot(name).controller)
     except ConfigError:
         return False
-    return bool(getattr(factory.config, "handles_obstacles", False))
+    return factory.handles_obstacles
 
 
 def detour_planner(scenario: Scenario, name: str) -> DetourPlanner | None:

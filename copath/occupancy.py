@@ -13,17 +13,26 @@ Two readers use it, so they cannot disagree: the metrics (``tasks_completed``,
 :class:`LastFormationWatch`). The announced targets come from the robots' telemetry
 (``formation_targets``): data, not a grade; whether they are occupied is decided here
 from the truth only.
+
+Which robots have a task queue, and what it holds, their controller family declares
+(:attr:`copath.control.ControllerFactory.tasks`; the roles family reads its ``formations``
+and ``arrive_tol``): this module never names a family.
 """
 
 from __future__ import annotations
 
+import json
 import math
+from dataclasses import dataclass
 from typing import Any, Iterable, Mapping, Sequence
 
 import numpy as np
 
 __all__ = [
     "ARRIVE_TOL_M",
+    "TaskQueue",
+    "queues_to_json",
+    "queues_from_json",
     "formations",
     "task_tolerance",
     "rigid_residual",
@@ -37,23 +46,52 @@ ARRIVE_TOL_M = 0.05
 """Default tolerance of a target [m]: the roles controllers' ``arrive_tol`` default."""
 
 
-def formations(scenario) -> list:
-    """The formation queue (templates) of the scenario's ``roles`` robots ([] without any)."""
-    for r in scenario.robots:
-        if r.controller == "roles":
-            return list(r.params.get("formations") or [])
+@dataclass(frozen=True)
+class TaskQueue:
+    """One robot's Chapter 6 task queue, as its family declares it
+    (:attr:`copath.control.ControllerFactory.tasks`): the robots with one are the ones this
+    rule watches."""
+
+    formations: tuple
+    """The formation queue: template positions of each formation, in order."""
+    arrive_tol: float = ARRIVE_TOL_M
+    """The robot's own target tolerance [m]."""
+
+
+def queues_to_json(queues: Mapping[str, TaskQueue]) -> str:
+    """The robots' task queues as JSON text, {robot: {"formations": [...], "arrive_tol": m}}
+    (handed to the simulator, which loads no controller family to ask)."""
+    return json.dumps({n: {"formations": [[list(map(float, p)) for p in f] for f in q.formations],
+                           "arrive_tol": q.arrive_tol} for n, q in queues.items()})
+
+
+def queues_from_json(text: str) -> dict[str, TaskQueue]:
+    """The task queues of :func:`queues_to_json` (raises ValueError naming what is wrong)."""
+    try:
+        raw = json.loads(text)
+        return {str(n): TaskQueue(tuple(q["formations"]), float(q["arrive_tol"])) for n, q in raw.items()}
+    except (ValueError, TypeError, KeyError, AttributeError) as exc:
+        raise ValueError(f"task queues {text[:80]!r} are not allowed; expected JSON "
+                         "{robot: {formations: [[[x, y], ...], ...], arrive_tol: m}}: " + str(exc)) from None
+
+
+def formations(queues: Mapping[str, TaskQueue]) -> list:
+    """The formation queue (templates) of the first robot with a task queue ([] without any);
+    ``queues`` is {robot: its queue} in the scenario's robot order."""
+    for q in queues.values():
+        return list(q.formations or [])
     return []
 
 
-def task_tolerance(scenario, names: Iterable[str]) -> float:
+def task_tolerance(scenario, names: Iterable[str], queues: Mapping[str, TaskQueue]) -> float:
     """``[metrics] task_tolerance_m``, else the first of ``names``' ``arrive_tol``."""
     tol = (getattr(scenario, "metrics", None) or {}).get("task_tolerance_m")
     if tol is not None:
         return float(tol)
     names = set(names)
-    for r in scenario.robots:
-        if r.name in names:
-            return float(r.params.get("arrive_tol", ARRIVE_TOL_M))
+    for n, q in queues.items():
+        if n in names:
+            return float(q.arrive_tol)
     return ARRIVE_TOL_M
 
 

@@ -479,8 +479,6 @@ def _cross_field(run: RunConfig | None, robots: list[RobotSpec], errs: _Errors) 
     if run is not None:
         errs.check(run.settle_s < run.duration_s, "run.settle_s", run.settle_s,
                    f"must be less than run.duration_s = {run.duration_s} (errors are measured after settling)")
-        errs.check(run.until != "tasks_done" or any(r.controller == "roles" for r in robots), "run.until",
-                   run.until, "'tasks_done' needs robots with a task queue (controller 'roles')")
     for a, b in itertools.combinations(robots, 2):
         gap = math.hypot(a.pose[0] - b.pose[0], a.pose[1] - b.pose[1])
         need = a.model.radius + b.model.radius

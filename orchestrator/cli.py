@@ -714,9 +714,10 @@ def _main(argv: Sequence[str] | None = None) -> int:
 
         return agent_main(argv[1:])
     if argv and argv[0] == "sim":
+        from agent.controllers import task_queues
         from sim.node import main as sim_main
 
-        return sim_main(argv[1:])
+        return sim_main(argv[1:], tasks_of=task_queues)  # the families' done rules, asked here
     parser = build_parser()
     bench = bool(argv) and argv[0] == "bench"
     args, rest = parser.parse_known_args(argv) if bench else (parser.parse_args(argv), [])

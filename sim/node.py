@@ -29,7 +29,7 @@ from typing import Callable, Mapping
 
 import numpy as np
 
-from copath.occupancy import LastFormationWatch, formations, task_tolerance
+from copath.occupancy import LastFormationWatch, TaskQueue, formations, queues_from_json, task_tolerance
 from copath.scenario import ConfigError, Scenario, load_scenario
 from copath.wire.cli import add_config_arguments, session_config_from_args
 from copath.wire.faults import silence_outages, windows_between
@@ -46,7 +46,7 @@ __all__ = ["SimNode", "main"]
 
 class TaskWatch:
     """``run.until = "tasks_done"``: when the truth completes the last formation of the
-    task queue (Chapter 6, controller ``roles``).
+    task queue (Chapter 6: the robots whose controller family declares a task queue).
 
     A controller never grades itself: the rule is the metrics' own
     (:mod:`copath.occupancy`, docs/reference/metrics.md, tasks of Chapter 6 (M5)): the true positions occupy the targets
@@ -57,9 +57,12 @@ class TaskWatch:
     announcements when it has its commands, and the end tick is the same over Zenoh and in
     one process."""
 
-    def __init__(self, scenario: Scenario) -> None:
-        self.names = [r.name for r in scenario.robots if r.controller == "roles"]
-        self.watch = LastFormationWatch(self.names, formations(scenario), task_tolerance(scenario, self.names))
+    def __init__(self, scenario: Scenario, queues: Mapping[str, TaskQueue]) -> None:
+        """``queues``: the robots' task queues as their controller families declare them
+        (``ControllerFactory.tasks``). The simulator loads no controller code to ask a family:
+        whoever starts it hands them over (the orchestrator; ``--tasks`` of :func:`main`)."""
+        self.names = list(queues)
+        self.watch = LastFormationWatch(self.names, formations(queues), task_tolerance(scenario, self.names, queues))
         self._lock = threading.Lock()  # telemetry arrives on the link's threads
 
     def update(self, name: str, rec: Telemetry) -> None:
@@ -75,9 +78,25 @@ class TaskWatch:
             return self.watch.completed(t, P)
 
 
+def sim_tasks(scenario: Scenario, text: str | None,
+              tasks_of: Callable[[Scenario], Mapping[str, TaskQueue]] | None) -> dict[str, TaskQueue] | None:
+    """The task queues a simulator process watches: from ``--tasks`` text, else from
+    ``tasks_of``; a ``tasks_done`` run without either is refused (ValueError naming the key)."""
+    if text is not None:
+        return queues_from_json(text)
+    if tasks_of is not None:
+        return dict(tasks_of(scenario))
+    if scenario.run.until == "tasks_done":
+        raise ValueError("--tasks = None is not allowed; run.until = 'tasks_done' needs the robots' task queues "
+                         "(JSON {robot: {formations, arrive_tol}}; copath run and copath sim pass them)")
+    return None
+
+
 class SimNode:
     def __init__(self, scenario: Scenario, keys: Keys, link: Link, start_timeout_s: float = 120.0,
-                 duration_s: float | None = None, on_tick: Callable[[int], None] | None = None) -> None:
+                 duration_s: float | None = None, on_tick: Callable[[int], None] | None = None,
+                 tasks: Mapping[str, TaskQueue] | None = None) -> None:
+        """``tasks``: the robots' task queues for ``run.until = "tasks_done"`` (:class:`TaskWatch`)."""
         self.scenario = scenario
         self.keys = keys
         self.link = link
@@ -87,7 +106,7 @@ class SimNode:
         self.synchronous = link.synchronous
         self._started_run = False
         self._started = False
-        self.tasks = TaskWatch(scenario) if scenario.run.until == "tasks_done" else None
+        self.tasks = TaskWatch(scenario, tasks or {}) if scenario.run.until == "tasks_done" else None
         self.tasks_done_t: float | None = None
         """Simulated time at which the truth completed the last formation."""
         self.world = World(scenario)
@@ -360,10 +379,17 @@ class SimNode:
         self.link.publish(self.keys.stats("sim"), Stats("sim", self.link.published, counters))
 
 
-def main(argv: list[str] | None = None) -> int:
+def main(argv: list[str] | None = None,
+         tasks_of: Callable[[Scenario], Mapping[str, TaskQueue]] | None = None) -> int:
+    """The simulator process. ``run.until = "tasks_done"`` needs the robots' task queues, which
+    their controller families declare: ``--tasks`` gives them (``copath run`` passes it), else
+    ``tasks_of(scenario)`` asks the families (``copath sim`` passes the registry's)."""
     p = argparse.ArgumentParser(prog="copath sim", description="Run the simulator process of a copath run.")
     p.add_argument("--run-id", required=True)
     p.add_argument("--config", required=True, help="scenario file (.toml, or the run's scenario.json)")
+    p.add_argument("--tasks", default=None,
+                   help="the robots' task queues for run.until = 'tasks_done', JSON {robot: {formations, arrive_tol}} "
+                        "(copath run passes it)")
     p.add_argument("--start-timeout", type=float, default=120.0, help="seconds to wait for every robot [120]")
     p.add_argument("-v", "--verbose", action="store_true")
     add_config_arguments(p)
@@ -374,6 +400,7 @@ def main(argv: list[str] | None = None) -> int:
         scenario = load_scenario(args.config)
         keys = Keys(args.run_id)
         conf = dataclasses.replace(session_config_from_args(args), lease_ms=round(1e3 * scenario.run.lease_s))
+        tasks = sim_tasks(scenario, args.tasks, tasks_of)
     except (ConfigError, ValueError) as exc:
         print(f"copath sim: {exc}", file=sys.stderr)
         return 2
@@ -385,7 +412,7 @@ def main(argv: list[str] | None = None) -> int:
         if conf.authenticated:  # behind a secure router: step outside the grants and fail at once
             link.guard(AccessPolicy.for_scenario(keys, scenario), "sim")
         try:
-            ok = SimNode(scenario, keys, link, args.start_timeout).run()
+            ok = SimNode(scenario, keys, link, args.start_timeout, tasks=tasks).run()
         except AccessDenied as exc:
             print(f"copath sim: {exc}", file=sys.stderr)
             return 2

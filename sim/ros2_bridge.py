@@ -49,7 +49,7 @@ from copath.wire.keys import Keys
 from copath.wire.link import Link
 from copath.wire.messages import Command, End, Obs, Stats
 
-from .node import SimNode
+from .node import SimNode, sim_tasks
 
 logger = logging.getLogger("copath.ros2_bridge")
 
@@ -72,8 +72,9 @@ class BridgeNode(SimNode):
     the ROS 2 side calls :meth:`on_pose` with each pose message's content.
     """
 
-    def __init__(self, scenario: Scenario, keys: Keys, link: Link, publish, start_timeout_s: float = 120.0) -> None:
-        super().__init__(scenario, keys, link, start_timeout_s)
+    def __init__(self, scenario: Scenario, keys: Keys, link: Link, publish, start_timeout_s: float = 120.0,
+                 tasks=None) -> None:
+        super().__init__(scenario, keys, link, start_timeout_s, tasks=tasks)
         self.publish_cmd = publish
         self.io = scenario.world.robots
         self.models = {r.name: r.model for r in scenario.robots}
@@ -402,6 +403,8 @@ def main(argv: list[str] | None = None) -> int:
                                 description="Run the ROS 2 world of a copath run (in place of the simulator).")
     p.add_argument("--run-id", required=True)
     p.add_argument("--config", required=True, help="scenario file (.toml, or the run's scenario.json)")
+    p.add_argument("--tasks", default=None,
+                   help="the robots' task queues for run.until = 'tasks_done', JSON (copath run passes it)")
     p.add_argument("--start-timeout", type=float, default=120.0, help="seconds to wait for every agent [120]")
     p.add_argument("-v", "--verbose", action="store_true")
     add_config_arguments(p)
@@ -419,6 +422,7 @@ def main(argv: list[str] | None = None) -> int:
 
         if (m := missing()) is not None:
             raise ConfigError(m)
+        tasks = sim_tasks(scenario, args.tasks, None)
     except (ConfigError, ValueError) as exc:
         print(f"copath ros2-bridge: {exc}", file=sys.stderr)
         return 2
@@ -441,7 +445,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         robots = Ros2Robots(scenario, lambda *a: holder["node"].on_pose(*a) if "node" in holder else None)
         with ZenohLink.open(conf) as link:
-            node = BridgeNode(scenario, keys, link, robots.publish, args.start_timeout)
+            node = BridgeNode(scenario, keys, link, robots.publish, args.start_timeout, tasks=tasks)
             holder["node"] = node
             try:
                 if conf.authenticated:

@@ -28,11 +28,18 @@ its parameters are then passed through unchecked.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import Any, Callable
+import dataclasses
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any, Callable, Mapping
 
 from ..config import ConfigError, from_table
+from ..wire.payloads import register_payloads
 from .contract import Controller, RobotContext
+
+if TYPE_CHECKING:  # type names only: declaring a factory stays light
+    from ..occupancy import TaskQueue
+    from ..scenario import Scenario
+    from ..team import TeamGeometry
 
 __all__ = ["ControllerFactory", "controller", "as_factory"]
 
@@ -53,6 +60,28 @@ class ControllerFactory:
     """Optional cheap cross-field check ``check(ctx, cfg)`` raising ConfigError."""
     name: str = ""
     """How the scenario named it (filled in by the resolver)."""
+    geometry: "Callable[[Scenario], TeamGeometry | None] | None" = None
+    """The team's desired geometry for grading from the truth (:class:`copath.team.TeamGeometry`):
+    ``geometry(scenario)`` for a team whose robots all declare this same function, or None
+    (the team is not one this family grades, e.g. a leader without followers). None here:
+    the family declares no geometry (``[metrics] path_offsets`` may still give one)."""
+    payloads: Mapping[str, Mapping[str, str]] = field(default_factory=dict)
+    """Schemas of the message kinds the family sends, ``{kind: {field: type}}`` in the form of
+    :mod:`copath.wire.payloads`; declaring the factory registers them with the wire, so
+    receivers validate every payload of these kinds against them."""
+    tasks: "Callable[[Mapping[str, Any]], TaskQueue | None] | None" = None
+    """The family's done rule (Chapter 6 occupancy, :mod:`copath.occupancy`): the robot's task
+    queue read from its ``[controller]`` table, or None. Robots with a queue are the ones
+    ``run.until = "tasks_done"`` and the task metrics watch."""
+    handles_cut_off: bool = False
+    """The controller rules on a cut-off robot itself (no hold by the runtime; the roles
+    family's cut-off rule, docs/reference/faults.md "Gone quiet")."""
+    handles_obstacles: bool = False
+    """The controller avoids obstacles itself (the runtime adds no obstacle filter)."""
+
+    def __post_init__(self) -> None:
+        if self.payloads:
+            register_payloads(self.payloads)
 
     def parse(self, ctx: RobotContext) -> Any:
         """The robot's parameters as :attr:`config` (raises ConfigError naming the key)."""
@@ -94,13 +123,21 @@ class ControllerFactory:
 
 
 def controller(*, config: type | None = None, needs_path: bool = False, models: tuple[str, ...] | None = None,
-               check: Callable[[RobotContext, Any], None] | None = None
+               check: Callable[[RobotContext, Any], None] | None = None, **declared: Any
                ) -> Callable[[Callable[[RobotContext, Any], Controller]], ControllerFactory]:
-    """Decorator that turns ``build(ctx, cfg)`` into a :class:`ControllerFactory`."""
+    """Decorator that turns ``build(ctx, cfg)`` into a :class:`ControllerFactory`.
+
+    ``declared`` holds the family's other declarations, by field name: ``geometry``,
+    ``payloads``, ``tasks``, ``handles_cut_off``, ``handles_obstacles``."""
+    allowed = {f.name for f in dataclasses.fields(ControllerFactory)} - {"build", "config", "needs_path", "models",
+                                                                       "check", "name"}
+    unknown = sorted(set(declared) - allowed)
+    if unknown:
+        raise TypeError(f"controller() got unknown declarations {unknown}; allowed: {sorted(allowed)}")
 
     def wrap(fn: Callable[[RobotContext, Any], Controller]) -> ControllerFactory:
         return ControllerFactory(fn, config, needs_path, tuple(models) if models else None, check,
-                                 getattr(fn, "__qualname__", ""))
+                                 getattr(fn, "__qualname__", ""), **declared)
 
     return wrap
 
@@ -108,7 +145,7 @@ def controller(*, config: type | None = None, needs_path: bool = False, models: 
 def as_factory(obj: Any, name: str, key: str = "controller.type") -> ControllerFactory:
     """A :class:`ControllerFactory` for ``obj``: a factory, or a plain ``build(ctx)``."""
     if isinstance(obj, ControllerFactory):
-        return ControllerFactory(obj.build, obj.config, obj.needs_path, obj.models, obj.check, name)
+        return dataclasses.replace(obj, name=name)
     if callable(obj):
         return ControllerFactory(lambda ctx, _params: obj(ctx), None, False, None, None, name)
     raise ConfigError(f"{key} = {name!r} is not allowed; it names {type(obj).__name__}, "

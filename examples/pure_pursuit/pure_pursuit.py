@@ -5,6 +5,11 @@ names it by import path (``controller.type = "pure_pursuit:build"``). It is the
 coordination idea of Sec. 5.5 of the dissertation in its simplest form: each robot
 follows its own path by pure pursuit and speeds up or slows down so that its path
 coordinate, minus its desired offset ``s_d``, agrees with its neighbours'.
+
+Besides its law it declares, on its factory, what the rest of copath would otherwise have
+to be told: the schema of its ``progress`` message (receivers validate it) and its team
+geometry (how the metrics grade the team from the simulator's truth: robots spaced along
+their paths by their ``s_d``), so the offsets are typed once, in the robots' parameters.
 """
 
 from __future__ import annotations
@@ -15,6 +20,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from copath.control import LatestMessages, Observation, Outgoing, PeerMessage, RobotContext, StepResult, controller
+from copath.team import TeamGeometry, along_path_geometry, robot_params
+
+PAYLOADS = {"progress": {"xi": "float", "v": "float"}}
+"""The one message kind it sends: its coordination coordinate xi = s - s_d and its speed."""
 
 
 @dataclass(frozen=True)
@@ -65,6 +74,13 @@ class PurePursuit:
         )
 
 
-@controller(config=PursuitConfig, needs_path=True, models=("unicycle",))
+def team_geometry(scenario) -> TeamGeometry:
+    """xi_i = s_i - s_di; robot i's slot at xi_ref is its path point at xi_ref + s_di."""
+    paths = {r.name: scenario.paths[r.path] for r in scenario.robots}
+    s_d = {n: robot_params(scenario, PursuitConfig, n).s_d for n in paths}
+    return along_path_geometry("pure_pursuit", paths, s_d)
+
+
+@controller(config=PursuitConfig, needs_path=True, models=("unicycle",), payloads=PAYLOADS, geometry=team_geometry)
 def build(ctx: RobotContext, cfg: PursuitConfig) -> PurePursuit:
     return PurePursuit(ctx, cfg)

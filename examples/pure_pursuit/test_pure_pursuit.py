@@ -11,10 +11,12 @@ import signal
 import subprocess
 import sys
 
+import tomllib
+
 import pytest
 
 from orchestrator.run.inprocess import run_scenario
-from orchestrator.run.validate import validate_file
+from orchestrator.run.validate import validate_file, validate_table
 
 HERE = pathlib.Path(__file__).resolve().parent
 
@@ -25,6 +27,22 @@ def test_in_process_the_team_coordinates_without_collisions():
     assert fleet["collisions"] == 0
     assert fleet["coordination_error_max_m"] < 0.02  # from the truth, not from the controller
     assert max(r["path_error_max_m"] for r in m["robots"].values()) < 0.02
+
+
+def test_graded_from_its_declared_geometry_as_with_typed_path_offsets():
+    """The controller declares its team geometry: the truth figures are computed with no
+    ``[metrics] path_offsets`` and are those the same offsets typed there give."""
+    raw = tomllib.loads((HERE / "scenario.toml").read_text())
+    assert "path_offsets" not in raw.get("metrics", {})
+    declared = run_scenario(validate_file(HERE / "scenario.toml")).metrics["fleet"]
+    typed = dict(raw, metrics={"path_offsets": {r["name"]: float(r.get("controller", {}).get("s_d", 0.0))
+                                                for r in raw["robots"]}})
+    given = run_scenario(validate_table(typed, base_dir=HERE)).metrics["fleet"]
+    keys = [k for k in given if k.startswith(("coordination_error", "formation_error"))]
+    computed = [k for k in keys if given[k] is not None]
+    assert {"coordination_error_max_m", "formation_error_max_m"} <= set(computed)
+    for k in keys:
+        assert declared[k] == given[k], k
 
 
 @pytest.mark.fleet

@@ -488,7 +488,9 @@ def compute_metrics(
           if d.get("formation_error") is not None and t >= settle - 1e-9 and not d.get("in_transition", False)]
     if fe:
         fleet["formation_error_max_reported_m"] = _f(max(fe))
-    if any(r.controller == "roles" for r in scenario.robots):
+    from agent.controllers import task_queues  # noqa: PLC0415 (the registry: light, no law)
+
+    if task_queues(scenario):  # a family with a done rule (Chapter 6 task queues)
         from orchestrator.analysis.roles import roles_metrics  # noqa: PLC0415
 
         fleet.update(roles_metrics(trace, scenario))

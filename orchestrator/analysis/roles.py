@@ -42,6 +42,7 @@ from scipy.optimize import linear_sum_assignment
 
 from copath.occupancy import first_occupied, formations, is_rigid_placement, task_tolerance
 
+from agent.controllers import task_queues
 from orchestrator.analysis.truth import outages
 
 __all__ = ["roles_metrics"]
@@ -68,8 +69,9 @@ def roles_metrics(trace, scenario) -> dict[str, Any]:
     dict
         The fleet keys listed in the module docstring.
     """
-    forms = formations(scenario)
-    names = [r.name for r in scenario.robots if r.controller == "roles" and r.name in trace.robots]
+    queues = task_queues(scenario)
+    forms = formations(queues)
+    names = [n for n in queues if n in trace.robots]
     out: dict[str, Any] = {
         "tasks_total": len(forms),
         "tasks_completed": 0,
@@ -86,7 +88,7 @@ def roles_metrics(trace, scenario) -> dict[str, Any]:
     if not names or not forms:
         return out
     robots = {n: trace.robots[n] for n in names}
-    tol = task_tolerance(scenario, names)
+    tol = task_tolerance(scenario, names, queues)
     grid = np.unique(np.concatenate([np.asarray(rt.telemetry_t, dtype=float) for rt in robots.values()]))
     if len(grid) == 0:
         return out

@@ -45,226 +45,41 @@ import itertools
 import logging
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
-from copath.config import ConfigError, from_table
+from copath.config import ConfigError
 from copath.paths import Path
 from copath.scenario import Scenario
-from copath.slots import offset_points, solve_coordinate, switching_offsets, track_coordinate, wrap_near
+from copath.slots import track_coordinate, wrap_near
+from copath.team import TeamGeometry, declared_geometry
 
 from orchestrator.analysis.figures import json_number as _f
 
 logger = logging.getLogger(__name__)
 
 __all__ = ["TeamGeometry", "TruthSeries", "team_geometry", "truth_series", "truth_metrics", "cross_track_series",
-           "FAMILIES", "leader_sequence", "outages", "stalled_mask", "stall_metrics", "detour_counts",
+           "leader_sequence", "outages", "stalled_mask", "stall_metrics", "detour_counts",
            "STALL_WINDOW_S", "STALL_PROGRESS_M"]
 
 
-@dataclass
-class TeamGeometry:
-    """The desired geometry of one team, as pure functions of path coordinates."""
-
-    family: str
-    paths: dict[str, Path]
-    """Path each robot's true position is projected onto."""
-    xi: Callable[..., dict[str, np.ndarray]]
-    """{robot: s (T,)} -> {robot: xi (T,)}. A team with a :attr:`succession` also takes
-    ``ref``, the team's reference coordinate C (T,) (default: the first leader's s)."""
-    slots: Callable[[np.ndarray], dict[str, np.ndarray]]
-    """xi_ref (T,) -> {robot: slot position (T, 2)} (robots that hold a slot)."""
-    in_transition: Callable[[np.ndarray], np.ndarray]
-    """xi_ref (T,) -> (T,) True while a formation change is under way."""
-    period: float = 0.0
-    """Period of xi (a shared closed path's length) or 0."""
-    leader: str | None = None
-    """The robot whose xi is the team's reference, or None for the mean."""
-    lateral: Callable[..., dict[str, np.ndarray]] | None = None
-    """{robot: s (T,)} -> {robot: desired lateral offset q (T,)} from its path; None: 0.
-    Takes ``ref`` as :attr:`xi` does."""
-    succession: tuple[str, ...] = ()
-    """A team that elects a new leader when its leader is lost (Sec. 5.3; docs/reference/faults.md,
-    "A new leader"): its members in the scenario's robot order, the first one the first
-    leader. Empty: the leader never changes and no robot is left ungraded."""
-    reference: Callable[[str, np.ndarray], np.ndarray] | None = None
-    """(robot, its path coordinate s (T,)) -> the team's reference coordinate C (T,) it
-    stands for as leader: it keeps its slot, s = C + p(C)."""
-
-
-def _params(scenario: Scenario, cls, name: str):
-    return from_table(cls, scenario.robot(name).params, f"robots.{name}.controller")
-
-
-def _no_transition(xi_ref: np.ndarray) -> np.ndarray:
-    return np.zeros(np.shape(xi_ref), dtype=bool)
-
-
-def _consensus(scenario: Scenario) -> TeamGeometry:
-    from agent.controllers.consensus.controller import ConsensusConfig  # noqa: PLC0415
-
-    paths = {r.name: scenario.paths[r.path] for r in scenario.robots}
-    s_d = {n: _params(scenario, ConsensusConfig, n).s_d for n in paths}
-    period = max((p.length for p in paths.values() if p.closed), default=0.0)
-    return TeamGeometry(
-        "consensus", paths,
-        xi=lambda S: {n: S[n] - s_d[n] for n in S},
-        slots=lambda x: {n: offset_points(paths[n], x + s_d[n], 0.0) for n in paths},
-        in_transition=_no_transition, period=period)
-
-
-def _dmpc(scenario: Scenario) -> TeamGeometry:
-    from agent.controllers.dmpc.controller import DMPCConfig  # noqa: PLC0415
-    from copath.morphing import morphing  # noqa: PLC0415
-
-    paths, morph, q, psi_d = {}, {}, {}, {}
-    period = 0.0
-    for r in scenario.robots:
-        cfg = _params(scenario, DMPCConfig, r.name)
-        own = scenario.paths[r.path]
-        base = scenario.paths[cfg.base_path] if cfg.base_path else own
-        paths[r.name], morph[r.name], q[r.name], psi_d[r.name] = own, morphing(own, base), cfg.q, cfg.offset(r.name)
-        period = max(period, base.length if base.closed else 0.0)
-    return TeamGeometry(
-        "dmpc", paths,
-        xi=lambda S: {n: morph[n].psi(S[n]) - psi_d[n] for n in S},
-        slots=lambda x: {n: offset_points(paths[n], morph[n].s(x + psi_d[n]), q[n]) for n in paths},
-        in_transition=_no_transition, period=period,
-        lateral=lambda S: {n: np.full(np.shape(S[n]), q[n]) for n in S})
-
-
-def _leader_following(scenario: Scenario) -> TeamGeometry:
-    from agent.controllers.leader_following.controller import FollowerConfig  # noqa: PLC0415
-
-    leader = next(r.name for r in scenario.robots if r.controller == "leader_nmpc")
-    followers = [r.name for r in scenario.robots if r.controller == "follower_nmpc"]
-    path = scenario.paths[scenario.robot(leader).path]
-    paths = {r.name: path for r in scenario.robots}
-    schedule = _params(scenario, FollowerConfig, followers[0]).formation_schedule(f"robots.{followers[0]}.controller")
-
-    succession = tuple(r.name for r in scenario.robots if r.name == leader or r.name in followers)
-
-    def xi(S, ref=None):
-        # every member's s less its offset p at C: the first leader's is 0 (it is C),
-        # so without ``ref`` (C = the first leader's s) this is the leader's s itself
-        c = S[leader] if ref is None else ref
-        out = {leader: S[leader]} if ref is None else {}
-        for n in succession:
-            if n in S and n not in out:
-                out[n] = S[n] - schedule.offsets(n, c)[0]
-        return out
-
-    def slots(x):
-        # the first leader's slot is C itself (offsets zero): it is the reference while it
-        # leads, and where it goes when it comes back to follow a newer leader
-        out = {}
-        for n in succession:
-            p, _, _, q, _, _ = schedule.offsets(n, x)
-            out[n] = offset_points(path, x + p, q)
-        return out
-
-    def reference(n, s):
-        # C with C + p_n(C) = s: the fixed point C <- s - p_n(C) (|p_n'| < 1 in a quintic change)
-        return solve_coordinate(s, lambda c: -schedule.offsets(n, c)[0])
-
-    def in_transition(x):
-        x = np.asarray(x, dtype=float)
-        mask = np.zeros(x.shape, dtype=bool)
-        for w in schedule.windows:
-            mask |= (x >= w.s_start) & (x <= w.s_end)
-        return mask
-
-    def lateral(S, ref=None):
-        c = S[leader] if ref is None else ref
-        out = {n: np.zeros(np.shape(S[n])) for n in S}
-        for f in followers:
-            if f in S:
-                out[f] = schedule.offsets(f, c)[3]
-        return out
-
-    return TeamGeometry("leader_following", paths, xi, slots, in_transition,
-                        period=path.length if path.closed else 0.0, leader=leader, lateral=lateral,
-                        succession=succession, reference=reference)
-
-
-def _heterogeneous(scenario: Scenario) -> TeamGeometry:
-    from agent.controllers.heterogeneous.controller import HeteroLeaderConfig  # noqa: PLC0415
-
-    leader = next(r.name for r in scenario.robots if r.controller == "hetero_leader")
-    cfg = _params(scenario, HeteroLeaderConfig, leader)
-    path = scenario.paths[scenario.robot(leader).path]
-    offs = {n: (float(v[0]), float(v[1])) for n, v in cfg.followers.items()}
-    paths = {r.name: path for r in scenario.robots}
-    return TeamGeometry(
-        "heterogeneous", paths,
-        xi=lambda S: {n: S[n] + (offs[n][0] if n in offs else 0.0) for n in S},
-        slots=lambda x: {n: offset_points(path, x - sd, q) for n, (sd, q) in offs.items()},
-        in_transition=_no_transition, period=path.length if path.closed else 0.0, leader=leader,
-        lateral=lambda S: {n: np.full(np.shape(S[n]), offs[n][1] if n in offs else 0.0) for n in S})
-
-
-def _switching(scenario: Scenario) -> TeamGeometry:
-    from agent.controllers.formation_switching.controller import FormationSwitchingConfig  # noqa: PLC0415
-
-    paths, cfgs = {}, {}
-    for r in scenario.robots:
-        paths[r.name] = scenario.paths[r.path]
-        cfgs[r.name] = _params(scenario, FormationSwitchingConfig, r.name)
-
-    def offs(n, s):
-        c = cfgs[n]
-        return switching_offsets(c.slots, c.switch_at, c.transition_m, s)
-
-    def own_s(n, x):
-        return solve_coordinate(x, lambda s: offs(n, s)[0])
-
-    def slots(x):
-        out = {}
-        for n in paths:
-            s = own_s(n, x)
-            out[n] = offset_points(paths[n], s, offs(n, s)[1])
-        return out
-
-    def in_transition(x):
-        return np.any([offs(n, own_s(n, x))[2] for n in paths], axis=0)
-
-    period = max((p.length for p in paths.values() if p.closed), default=0.0)
-    return TeamGeometry("formation_switching", paths,
-                        xi=lambda S: {n: S[n] - offs(n, S[n])[0] for n in S},
-                        slots=slots, in_transition=in_transition, period=period,
-                        lateral=lambda S: {n: offs(n, S[n])[1] for n in S})
-
-
-def _declared(scenario: Scenario) -> TeamGeometry:
-    """The geometry the scenario declares in ``[metrics] path_offsets`` (any controller)."""
-    s_d = {n: float(v) for n, v in scenario.metrics["path_offsets"].items()}
-    q = {n: float(v) for n, v in (scenario.metrics.get("lateral_offsets") or {}).items()}
-    paths = {r.name: scenario.paths[r.path] for r in scenario.robots}
-    period = max((p.length for p in paths.values() if p.closed), default=0.0)
-    return TeamGeometry(
-        "declared", paths,
-        xi=lambda S: {n: S[n] - s_d[n] for n in S},
-        slots=lambda x: {n: offset_points(paths[n], x + s_d[n], q.get(n, 0.0)) for n in paths},
-        in_transition=_no_transition, period=period)
-
-
-FAMILIES: dict[frozenset, Callable[[Scenario], TeamGeometry]] = {
-    frozenset({"consensus"}): _consensus,
-    frozenset({"dmpc"}): _dmpc,
-    frozenset({"leader_nmpc", "follower_nmpc"}): _leader_following,
-    frozenset({"hetero_leader", "hetero_follower"}): _heterogeneous,
-    frozenset({"formation_switching"}): _switching,
-}
-"""Controller types of a team -> builder of its desired geometry."""
-
-
 def team_geometry(scenario: Scenario) -> TeamGeometry | None:
-    """The team's desired geometry, or None (a single robot, or a family without one)."""
+    """The team's desired geometry, or None (a single robot, or a team no family grades).
+
+    ``[metrics] path_offsets`` declares one for any controller
+    (:func:`copath.team.declared_geometry`); otherwise the team is graded by the geometry its
+    family declares on its factory (:attr:`copath.control.ControllerFactory.geometry`) when
+    every robot's factory declares the same one. No family is named here."""
     if len(scenario.robots) < 2:
         return None
-    build = (_declared if scenario.metrics.get("path_offsets")
-             else FAMILIES.get(frozenset(r.controller for r in scenario.robots)))
+    if scenario.metrics.get("path_offsets"):
+        build = declared_geometry
+    else:
+        from agent.controllers import team_factories  # noqa: PLC0415 (the registry: light, no law)
+
+        declared = {f.geometry if f is not None else None for f in team_factories(scenario).values()}
+        build = declared.pop() if len(declared) == 1 else None
     if build is None:
         return None
     try:

@@ -24,6 +24,7 @@ import uuid
 from dataclasses import dataclass, field
 from typing import Any, Callable, Mapping, TextIO
 
+from agent.controllers import task_queues
 from agent.node import AgentNode
 from agent.runtime import RobotRuntime
 from copath.scenario import Scenario
@@ -112,7 +113,7 @@ def run_scenario(scenario: Scenario, duration_s: float | None = None, run_id: st
             on_tick((k + 1) * dt, len(bus.records))
 
     sim = SimNode(scenario, keys, bus.link("sim"), duration_s=duration_s,
-                  on_tick=tick if faults or on_tick is not None else None)
+                  on_tick=tick if faults or on_tick is not None else None, tasks=task_queues(scenario))
     sim.world.t = 0.0
     for a in agents.values():
         a.start()

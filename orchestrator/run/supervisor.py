@@ -20,7 +20,8 @@ import time
 from dataclasses import dataclass
 from typing import Any, Callable
 
-from agent.controllers import import_path_dirs
+from agent.controllers import import_path_dirs, task_queues
+from copath.occupancy import queues_to_json
 from copath.scenario import Scenario
 from copath.wire.keys import Keys
 from copath.wire.messages import Event
@@ -246,8 +247,11 @@ class Supervisor:
         if self.fork_server:
             self._zygote = Zygote(self.scen_path, self.out / "logs")
         world = "sim.ros2_bridge" if self.scenario.world.ros2 else "sim"  # ROS 2 robots: the bridge (docs/reference/ros2.md)
+        # the robots' task queues, as their families declare them: the simulator loads no
+        # controller code to ask (run.until = "tasks_done")
+        tasks = ["--tasks", queues_to_json(task_queues(self.scenario))]
         self.children.append(spawn("sim", [sys.executable, "-m", world, *self.common, *self.auth("sim"),
-                                           "--start-timeout", str(self.start_timeout_s)],
+                                           "--start-timeout", str(self.start_timeout_s), *tasks],
                                    self.out / "logs" / "sim.log", self.out / "logs"))
         for name in self.scenario.robot_names:
             if name in self.external:

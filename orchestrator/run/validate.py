@@ -20,7 +20,7 @@ import pathlib
 import re
 from typing import Any, Mapping
 
-from agent.controllers import extend_import_path, resolve_controller
+from agent.controllers import extend_import_path, resolve_controller, task_queues
 from copath.config import ConfigError, ConfigErrors
 from copath.control import RobotContext
 from copath.scenario import Scenario, load_scenario, parse_scenario
@@ -88,6 +88,9 @@ def controller_errors(scenario: Scenario) -> list[str]:
             errors.extend(found)
             if not found and spec.name in offsets:
                 errors.extend(_offset_errors(factory, ctx, offsets[spec.name]))
+    if scenario.run.until == "tasks_done" and not task_queues(scenario):
+        errors.append("run.until = 'tasks_done' is not allowed; 'tasks_done' needs robots with a task queue "
+                      "(a controller family that declares a done rule, as 'roles' does)")
     return list(dict.fromkeys(errors))
 
 

@@ -5,7 +5,8 @@ positions, not the robots' reports of being done."""
 import numpy as np
 import pytest
 
-from copath.occupancy import LastFormationWatch, first_occupied, occupied
+from agent.controllers import task_queues
+from copath.occupancy import LastFormationWatch, first_occupied, occupied, queues_from_json, queues_to_json
 from copath.scenario import load_scenario
 from copath.wire.messages import Event, Telemetry
 from orchestrator.run.inprocess import run_scenario
@@ -48,7 +49,8 @@ def test_watch_uses_the_first_announcement_and_ignores_non_rigid_targets():
 
 def test_reports_of_done_do_not_stop_the_run_the_truth_does():
     s = load_scenario(config("e6.5-"))
-    watch = TaskWatch(s)
+    watch = TaskWatch(s, task_queues(s))  # the roles family's declared queues, as the orchestrator hands them
+    assert watch.names == list(s.robot_names)
     last = len(s.robots[0].params["formations"]) - 1
     names = watch.names
     template = np.asarray(s.robots[0].params["formations"][last], dtype=float)
@@ -60,6 +62,20 @@ def test_reports_of_done_do_not_stop_the_run_the_truth_does():
     on = {n: np.array([*G[i % len(G)], 0.0]) for i, n in enumerate(names)}
     on.update({n: far[n] for n in names[len(G):]})  # surplus robots wait anywhere
     assert watch.done(10.0, on)
+
+
+def test_the_task_queues_reach_the_simulator_process_unchanged():
+    """What ``copath run`` passes the simulator process (``--tasks``) is what the family declared."""
+    s = load_scenario(config("e6.5-"))
+    queues = task_queues(s)
+    assert list(queues) == list(s.robot_names)
+    back = queues_from_json(queues_to_json(queues))
+    assert list(back) == list(queues)
+    for n, q in queues.items():
+        assert back[n].arrive_tol == q.arrive_tol
+        assert np.allclose(np.asarray(back[n].formations[-1], dtype=float), np.asarray(q.formations[-1], dtype=float))
+    with pytest.raises(ValueError, match="task queues"):
+        queues_from_json('{"r1": {"formations": 3}}')
 
 
 @pytest.fixture(scope="module")

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from agent.controllers.dmpc.controller import build
+from agent.controllers.dmpc import build
 from copath.control import LatestMessages, Observation, PeerMessage
 from tests.unit.test_dmpc import DT, PATH, _ctx
 

@@ -15,7 +15,8 @@ import numpy as np
 
 from agent.controllers.roles.assignment import RoleBook
 from agent.controllers.roles.controller import RolesController
-from agent.controllers.roles.phases import ASSIGNED, EN_ROUTE, Assignment, Peer, PeerTable
+from agent.controllers.roles.peers import Peer, PeerTable
+from agent.controllers.roles.phases import ASSIGNED, EN_ROUTE, Assignment
 from copath.control import Observation, PeerMessage, RobotContext
 from copath.models import UnicycleModel
 from orchestrator import api

@@ -212,7 +212,7 @@ def test_roles_phases_keep_their_state_in_init_and_three_robots_form_a_triangle(
     """Three roles controllers exchanging their broadcasts (delivered one step later) agree
     on the placement, take distinct positions and reach them; no phase object gains an
     attribute after __init__ (the state of every phase is declared up front)."""
-    from agent.controllers.roles import RolesController
+    from agent.controllers.roles.controller import RolesController
 
     names = ("a", "b", "c")
     tri = [[0.0, 0.6], [-0.5, -0.3], [0.5, -0.3]]

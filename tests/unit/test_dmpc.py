@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from copath.control import Observation, PeerMessage, RobotContext
-from agent.controllers.dmpc.controller import AssumedTrajectory, DMPCController, assumed_trajectory, build, terminal_rollout
+from agent.controllers.dmpc import build
+from agent.controllers.dmpc.controller import AssumedTrajectory, DMPCController, assumed_trajectory, terminal_rollout
 from copath.config import ConfigError
 from copath.models import OmniModel
 from copath.paths import ellipse

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from copath.control import Observation, RobotContext
-from agent.controllers.formation_switching.controller import FormationSwitchingConfig, build
+from agent.controllers.formation_switching import FormationSwitchingConfig, build
 from copath.config import ConfigError, from_table
 from copath.models import UnicycleModel
 from copath.paths import line

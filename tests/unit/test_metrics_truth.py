@@ -12,7 +12,10 @@ import numpy as np
 import pytest
 
 import agent.controllers as registry
-from agent.controllers.consensus.controller import ConsensusConfig, ConsensusController
+from agent.controllers.consensus.config import ConsensusConfig
+from agent.controllers.consensus.controller import ConsensusController
+from agent.controllers.consensus.geometry import consensus_geometry
+from copath.control import controller
 from copath.config import from_table
 from copath.paths import circle, lemniscate, line
 from copath.scenario import load_scenario
@@ -89,9 +92,11 @@ class LyingController:
         return dataclasses.replace(res, telemetry=tel)
 
 
-def build_liar(ctx):
+@controller(geometry=consensus_geometry)
+def build_liar(ctx, _params):
     """``consensus`` whose robot r1 runs LIAR_OFFSET ahead of its slot and reports xi
-    against that offset (so its neighbours and its telemetry agree with each other)."""
+    against that offset (so its neighbours and its telemetry agree with each other). It
+    declares the consensus family's team geometry, so the truth grades it as that family."""
     params = dict(ctx.params)
     if ctx.name == "r1":
         params["s_d"] = float(params.get("s_d", 0.0)) + LIAR_OFFSET

@@ -1,1 +1,27 @@
-"""The ``formation_switching`` controller family (see :mod:`.controller`)."""
+"""The ``formation_switching`` controller family: formation switching while following a path
+(Sec. 6.2.4, E6.6).
+
+- :mod:`.config`      its parameters;
+- :mod:`.controller`  the law (imported when a robot builds it);
+- :mod:`.payloads`    the schema of its ``formation_state`` broadcast;
+- :mod:`.geometry`    its team geometry for grading from the truth.
+"""
+
+from __future__ import annotations
+
+from copath.control import RobotContext, controller
+
+from .config import FormationSwitchingConfig
+from .geometry import switching_geometry
+from .payloads import PAYLOADS
+
+__all__ = ["build", "FormationSwitchingConfig"]
+
+
+@controller(config=FormationSwitchingConfig, needs_path=True, models=("unicycle",), geometry=switching_geometry,
+            payloads=PAYLOADS)
+def build(ctx: RobotContext, cfg: FormationSwitchingConfig):
+    """Registry builder ``formation_switching`` (E6.6)."""
+    from .controller import FormationSwitchingController  # noqa: PLC0415 (the law loads with the robot only)
+
+    return FormationSwitchingController(ctx, cfg)

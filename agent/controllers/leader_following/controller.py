@@ -22,7 +22,7 @@ Beyond the dissertation (docs/reference/faults.md, "A new leader"): with ``run.o
 a new one. Every member applies the same succession rule to what it already knows, so the
 team agrees without exchanging a vote: the new leader is the first robot of the team, in the
 scenario's robot order, that is not lost. It keeps its own slot and keeps the team's
-reference point C moving from the leader progress it last knew (:class:`KeeperOfC`), so
+reference point C moving from the leader progress it last knew (:class:`NewLeaderPlanner`), so
 every member keeps its offsets (p, q) from C and no reference jumps; C itself is left empty,
 since the lost leader stops there. Each election raises a term carried in the plans, so a
 returning leader, which starts at term 0, follows the leader of the higher term (tracking C)
@@ -33,19 +33,22 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-import math
 from dataclasses import dataclass
-from typing import Any, Mapping, Sequence
+from typing import Any, Sequence
 
 import numpy as np
 
 from copath.config import ConfigError, from_table, require
-from copath.offsets import Quintic, offset_state
-from copath.paths import Path, PathTable, wrap_to_pi
+from copath.paths import Path, wrap_to_pi
 
-from copath.control import (controller, LatestMessages, Observation, Outgoing, PeerMessage, RobotContext, StepResult,
+from copath.control import (LatestMessages, Observation, Outgoing, PeerMessage, RobotContext, StepResult,
                             VirtualVehicle)
-from agent.controllers.omni_nmpc.controller import OmniNMPCFields, OmniPathFollower, OmniPFConfig, OmniTrackingNMPC, check_gain_conditions
+from agent.controllers.omni_nmpc.config import OmniPFConfig, check_gain_conditions
+from agent.controllers.omni_nmpc.controller import OmniPathFollower, OmniTrackingNMPC
+
+from .config import FollowerConfig, LeaderConfig
+from .formation import FollowerReference, FormationSchedule, follower_reference, planned_min_separation
+from .payloads import PLAN_KIND, STATUS_KIND
 
 __all__ = [
     "PathLeader",
@@ -54,8 +57,7 @@ __all__ = [
     "LeaderController",
     "FollowerController",
     "LeaderFollowing",
-    "build_leader",
-    "build_follower",
+    "NewLeaderPlanner",
     "LeaderPlan",
     "FormationSchedule",
     "FollowerReference",
@@ -64,11 +66,6 @@ __all__ = [
 ]
 
 logger = logging.getLogger(__name__)
-
-PLAN_KIND = "leader_plan"
-"""The leader's plan (s_l, sdot_pred, delta_l) sent after each solve (Sec. 5.3.3)."""
-STATUS_KIND = "follower_status"
-"""A follower's tracking error for the formation feedback (beyond the text)."""
 
 
 def _usable_plan(m: PeerMessage) -> bool:
@@ -123,255 +120,10 @@ class LeaderPlan:
 # -- formation specification (curvilinear offsets) -------------------------------------
 
 
-@dataclass(frozen=True)
-class _Window:
-    formation: str
-    s_start: float
-    s_end: float
-
-
-@dataclass(frozen=True)
-class FormationSchedule:
-    """Curvilinear formation offsets (p_i, q_i) of every follower along the leader's s.
-
-    ``formations`` maps a formation name to ``{robot: (p, q)}``; the leader is the
-    reference point C with (0, 0). The team starts in ``initial`` and moves to the
-    formation of each window over [s_start, s_end] of the leader's path coordinate,
-    with p and q following the quintic (5.3). Windows must not overlap.
-    """
-
-    formations: Mapping[str, Mapping[str, tuple[float, float]]]
-    initial: str
-    windows: tuple[_Window, ...] = ()
-
-    @classmethod
-    def from_params(cls, formations: Any, initial: str, schedule: Any, where: str) -> "FormationSchedule":
-        """Build from the scenario tables; raises ConfigError naming the key."""
-        require(isinstance(formations, Mapping) and formations, f"{where}.formations", formations,
-                "expected a table {name = {robot = [p, q], ...}, ...}")
-        forms: dict[str, dict[str, tuple[float, float]]] = {}
-        robots: set[str] | None = None
-        for name, slots in formations.items():
-            require(isinstance(slots, Mapping), f"{where}.formations.{name}", slots, "expected {robot = [p, q]}")
-            forms[name] = {}
-            for robot, pq in slots.items():
-                ok = isinstance(pq, (list, tuple)) and len(pq) == 2 and all(
-                    isinstance(v, (int, float)) and not isinstance(v, bool) for v in pq)
-                require(ok, f"{where}.formations.{name}.{robot}", pq, "expected [p, q] in metres")
-                forms[name][robot] = (float(pq[0]), float(pq[1]))
-            require(robots is None or set(forms[name]) == robots, f"{where}.formations.{name}", sorted(forms[name]),
-                    f"every formation must place the same followers: {sorted(robots or [])}")
-            robots = set(forms[name])
-        require(initial in forms, f"{where}.initial_formation", initial, f"allowed: {', '.join(sorted(forms))}")
-        wins = []
-        for i, w in enumerate(schedule or []):
-            key = f"{where}.schedule[{i}]"
-            require(isinstance(w, Mapping) and set(w) == {"formation", "s_start", "s_end"}, key, w,
-                    "expected {formation, s_start, s_end}")
-            require(w["formation"] in forms, f"{key}.formation", w["formation"], f"allowed: {', '.join(sorted(forms))}")
-            s0, s1 = float(w["s_start"]), float(w["s_end"])
-            require(s1 > s0, f"{key}.s_end", s1, "must be greater than s_start")
-            require(not wins or s0 >= wins[-1].s_end, f"{key}.s_start", s0,
-                    "windows must be in order and must not overlap")
-            wins.append(_Window(str(w["formation"]), s0, s1))
-        return cls(forms, initial, tuple(wins))
-
-    @property
-    def followers(self) -> tuple[str, ...]:
-        return tuple(self.formations[self.initial])
-
-    def _segments(self, robot: str):
-        """Quintics of p and q for each window: list of (window, Quintic_p, Quintic_q)."""
-        out = []
-        prev = self.formations[self.initial][robot]
-        for w in self.windows:
-            nxt = self.formations[w.formation][robot]
-            out.append((w, Quintic(prev[0], nxt[0], w.s_start, w.s_end), Quintic(prev[1], nxt[1], w.s_start, w.s_end)))
-            prev = nxt
-        return out, prev
-
-    def offsets(self, robot: str, s_c) -> tuple[np.ndarray, ...]:
-        """(p, p', p'', q, q', q'') of ``robot`` at leader coordinate(s) s_c; ' = d/ds_c.
-        A robot the formations do not place (the leader) is at C: all zero."""
-        s_c = np.asarray(s_c, dtype=float)
-        if robot not in self.formations[self.initial]:
-            return tuple(np.zeros(s_c.shape) for _ in range(6))
-        p0, q0 = self.formations[self.initial][robot]
-        p = np.full(s_c.shape, p0)
-        q = np.full(s_c.shape, q0)
-        zeros = np.zeros(s_c.shape)
-        dp, ddp, dq, ddq = zeros.copy(), zeros.copy(), zeros.copy(), zeros.copy()
-        segs, _ = self._segments(robot)
-        for w, qp, qq in segs:
-            sel = s_c > w.s_start  # at and after the window's start the quintic holds (clipped)
-            if not np.any(sel):
-                continue
-            pv, dpv, ddpv = qp(s_c)
-            qv, dqv, ddqv = qq(s_c)
-            p, dp, ddp = np.where(sel, pv, p), np.where(sel, dpv, dp), np.where(sel, ddpv, ddp)
-            q, dq, ddq = np.where(sel, qv, q), np.where(sel, dqv, dq), np.where(sel, ddqv, ddq)
-        return p, dp, ddp, q, dq, ddq
-
-    def in_transition(self, s_c: float) -> bool:
-        return any(w.s_start <= s_c <= w.s_end for w in self.windows)
-
-
 # -- follower reference trajectory (5.4)-(5.5) ----------------------------------------
 
 
-@dataclass(frozen=True)
-class FollowerReference:
-    """Reference of one follower at a set of times (arrays of equal length)."""
-
-    pose: np.ndarray
-    """(n, 3) reference poses (x, y, theta) on the offset curve."""
-    u: np.ndarray
-    """(n,) reference translational speed u_{i,R} = H u_p (5.4) [m/s]."""
-    omega: np.ndarray
-    """(n,) reference yaw rate omega_{i,R} = k_i u_{i,R} (5.5) [rad/s]."""
-    s_c: np.ndarray
-    """(n,) estimated leader path coordinate [m]."""
-    s_i: np.ndarray
-    """(n,) own path coordinate s_i = s_c + p_i [m]."""
-    p: np.ndarray
-    """(n,) along-track offsets p_i [m]."""
-    H: np.ndarray
-    """(n,) dl/ds_i of the offset curve (A.4)."""
-
-    def progress_of(self, xy) -> float:
-        """First-order projection of a position onto the path coordinate at row 0:
-        s_i + (p - o(s_i)) . t_i / H (the offset curve's tangent t_i, dl/ds = H)."""
-        d = np.asarray(xy, dtype=float)[:2] - self.pose[0, :2]
-        th = self.pose[0, 2]
-        return float(self.s_i[0] + (d[0] * math.cos(th) + d[1] * math.sin(th)) / self.H[0])
-
-
-def follower_reference(path: Path | PathTable, schedule: FormationSchedule, robot: str, s_c,
-                       sdot_c) -> FollowerReference:
-    """Reference poses and velocities of follower ``robot`` for leader progress s_c, sdot_c.
-
-    s_i = s_c + p_i(s_c); o(s_i) = r(s_i) + q_i n(s_i) with heading theta_p + atan2(q', 1 - k q)
-    (App. A). With p and q functions of s_c (the schedule's coordinate), the derivatives
-    along the follower's own coordinate are dq/ds_i = q_c' / (1 + p_c') and
-    d2q/ds_i^2 = (q_c'' (1 + p_c') - q_c' p_c'') / (1 + p_c')^3. The speed at s_i is
-    u_p = sdot_c (1 + p_c') = sdot_c + pdot_i (docs/reference/ambiguities.md, u_p when the along-track offset varies (A28)), so u_{i,R} = H u_p (5.4) and
-    omega_{i,R} = k_i u_{i,R} (5.5).
-    """
-    s_c = np.atleast_1d(np.asarray(s_c, dtype=float))
-    sdot_c = np.broadcast_to(np.asarray(sdot_c, dtype=float), s_c.shape)
-    p, dp, ddp, q, dq_c, ddq_c = schedule.offsets(robot, s_c)
-    j = 1.0 + dp
-    if np.any(j <= 0.05):
-        raise ValueError("along-track offset changes faster than the leader moves (1 + dp/ds <= 0.05)")
-    dq = dq_c / j
-    ddq = (ddq_c * j - dq_c * ddp) / j**3
-    s_i = s_c + p
-    geo = offset_state(path, s_i, q, dq, ddq)
-    u_p = sdot_c * j
-    u = geo.H * u_p
-    pose = np.column_stack([geo.pos[..., 0], geo.pos[..., 1], geo.theta])
-    return FollowerReference(pose=pose, u=u, omega=geo.kappa * u, s_c=s_c, s_i=s_i, p=p, H=geo.H)
-
-
-def planned_min_separation(path: Path, schedule: FormationSchedule, s_from: float, s_to: float,
-                           leader: str = "leader", step: float = 0.02) -> tuple[float, float, tuple[str, str]]:
-    """Smallest distance between planned slots (leader at C included) over s_c in [s_from, s_to].
-
-    Returns (distance [m], s_c where it occurs, the pair of robots).
-    """
-    s_c = np.arange(s_from, s_to + step, step)
-    names = [leader, *schedule.followers]
-    pos = [np.asarray(path.pos(s_c))]
-    for r in schedule.followers:
-        ref = follower_reference(path, schedule, r, s_c, np.ones_like(s_c))
-        pos.append(ref.pose[:, :2])
-    best = (math.inf, float(s_from), (names[0], names[0]))
-    for a in range(len(names)):
-        for b in range(a + 1, len(names)):
-            d = np.hypot(*(pos[a] - pos[b]).T)
-            k = int(np.argmin(d))
-            if d[k] < best[0]:
-                best = (float(d[k]), float(s_c[k]), (names[a], names[b]))
-    return best
-
-
 # -- configs -----------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class _FormationFields:
-    """Formation keys shared by the leader and the followers (one [controller] table)."""
-
-    leader: str = ""
-    """Name of the leader robot (required by followers)."""
-    formations: Mapping[str, Any] | None = None
-    """{name = {follower = [p, q], ...}, ...}: curvilinear offsets from C [m] (Fig. 5.2)."""
-    initial_formation: str = ""
-    """Formation at the start (default: the first one listed)."""
-    schedule: tuple[Mapping[str, Any], ...] = ()
-    """Formation changes [{formation, s_start, s_end}] on the leader's path coordinate [m]."""
-    safety_distance: float = 0.5
-    """Planned slots of two robots may not come closer than this [m] (checked at build)."""
-    formation_feedback: bool = True
-    """Followers report their tracking error and the leader slows down (beyond the text)."""
-
-    def formation_schedule(self, where: str) -> FormationSchedule:
-        require(bool(self.formations), f"{where}.formations", self.formations,
-                "a leader-following team needs at least one formation")
-        initial = self.initial_formation or next(iter(self.formations))
-        return FormationSchedule.from_params(self.formations, initial, list(self.schedule), where)
-
-
-@dataclass(frozen=True)
-class LeaderConfig(_FormationFields, OmniPFConfig):
-    """The leader of Sec. 5.3: path-following NMPC (5.6)-(5.7) with E5.1 values as defaults."""
-
-    horizon: int = 3
-    """N_p = 3 (E5.1)."""
-    Q: tuple[float, float, float] = (1.0, 1.0, 1.0)
-    """Q = I_3 (E5.1)."""
-    R: tuple[float, float, float] = (0.1, 0.1, 0.1)
-    """R = 0.1 I_3 (E5.1)."""
-    u_R: float = 0.4
-    """Leader reference speed u_R (E5.1: 0.4 m/s); omega_R = kappa_R u_R."""
-    sdot_max: float = 1.0
-    """Upper bound of s-dot [m/s] (chosen: 2.5 u_R)."""
-    feedback_error_low: float = 0.10
-    """Formation feedback: full speed while every follower's error is below this [m] (chosen)."""
-    feedback_error_high: float = 0.40
-    """Formation feedback: slowest at this follower error [m] (chosen)."""
-    feedback_min_factor: float = 0.25
-    """Formation feedback: lowest fraction of u_R (chosen)."""
-    feedback_rate: float = 1.0
-    """Formation feedback: largest change of the speed fraction per second [1/s] (chosen)."""
-    feedback_stale_s: float = 1.0
-    """Follower reports older than this are ignored [s] (chosen)."""
-
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        require(0 <= self.feedback_error_low < self.feedback_error_high, "feedback_error_high",
-                self.feedback_error_high, "must exceed feedback_error_low >= 0")
-        require(0 < self.feedback_min_factor <= 1, "feedback_min_factor", self.feedback_min_factor, "must be in (0, 1]")
-        require(self.feedback_rate > 0, "feedback_rate", self.feedback_rate, "must be > 0")
-        require(self.feedback_stale_s > 0, "feedback_stale_s", self.feedback_stale_s, "must be > 0")
-
-
-@dataclass(frozen=True)
-class FollowerConfig(_FormationFields, OmniNMPCFields):
-    """A follower of Sec. 5.3: trajectory-tracking NMPC (5.8) with E5.1 values as defaults."""
-
-    horizon: int = 3
-    """N_p = 3 (E5.1)."""
-    Q: tuple[float, float, float] = (1.0, 1.0, 1.0)
-    """Q = I_3 (E5.1)."""
-    R: tuple[float, float, float] = (0.1, 0.1, 0.1)
-    """R = 0.1 I_3 (E5.1)."""
-    plan_timeout_s: float = 2.0
-    """The leader's progress is extrapolated for at most this long without a new plan [s] (chosen)."""
-
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        require(self.plan_timeout_s > 0, "plan_timeout_s", self.plan_timeout_s, "must be > 0")
 
 
 # -- controllers ---------------------------------------------------------------------------
@@ -462,7 +214,7 @@ class LeaderController:
                           telemetry=tel)
 
 
-class KeeperOfC:
+class NewLeaderPlanner:
     """A new leader's own part (docs/reference/faults.md, "A new leader"): it keeps the team's
     reference point C moving along the path as the Sec. 5.3 leader's virtual vehicle would,
     at u_R times the formation feedback, from the leader progress last known, and makes the
@@ -588,7 +340,7 @@ class LeaderFollowing:
     lost pick the same leader without a message; a member that elected another robot goes
     back to the old leader if it hears it again before a plan of the new leader arrives
     (it alone had lost it). The new leader keeps its slot and keeps C
-    (:class:`KeeperOfC`); everyone keeps its offsets from C. A ``leader_plan`` carries the
+    (:class:`NewLeaderPlanner`); everyone keeps its offsets from C. A ``leader_plan`` carries the
     term: a member that hears a plan of a higher term takes its sender as leader (a leader
     that comes back, or a member that learnt of a loss later); a plan of a lower term is
     ignored, so a returning leader follows, at C, instead of taking the lead back.
@@ -605,7 +357,7 @@ class LeaderFollowing:
         self.leader = first
         self.role: LeaderController | FollowerController = (LeaderController(ctx, cfg) if lead
                                                              else FollowerController(ctx, cfg))
-        self.keeper: KeeperOfC | None = None
+        self.planner: NewLeaderPlanner | None = None
         self._before: tuple[str, int] | None = None
         """(leader, term) before an election of another robot, until a plan of the new term
         comes from the new leader: if the old leader is heard again first, this member alone
@@ -644,7 +396,7 @@ class LeaderFollowing:
 
     def _take_role(self, t: float) -> None:
         me, role = self.ctx.name, self.role
-        if self.leading and isinstance(role, FollowerController) and self.keeper is None:
+        if self.leading and isinstance(role, FollowerController) and self.planner is None:
             # promoted: keep C from the leader progress last known, at the team's speed
             s0 = role.progress(t)
             if s0 is None:  # never heard a plan: C from the schedule's start
@@ -652,10 +404,10 @@ class LeaderFollowing:
             extra = {} if role.u_R is None else {"u_R": role.u_R}
             cfg = _role_config(LeaderConfig, self.ctx, **extra)
             others = [r for r in self.succession if r != me]
-            self.keeper = KeeperOfC(cfg, others, s0, role.cfg.horizon, role.nmpc.dt)
+            self.planner = NewLeaderPlanner(cfg, others, s0, role.cfg.horizon, role.nmpc.dt)
             role.follow(me)
         elif not self.leading:
-            self.keeper = None
+            self.planner = None
             if isinstance(role, LeaderController):  # the first leader, back to a newer one: follow at C
                 self.role = FollowerController(self.ctx, _role_config(FollowerConfig, self.ctx, leader=self.leader),
                                                at_c=True)
@@ -667,8 +419,8 @@ class LeaderFollowing:
         self._adopt(inbox)
         self._take_role(obs.t)
         plan = None
-        if self.keeper is not None:
-            plan = self.keeper.plan(obs, inbox)
+        if self.planner is not None:
+            plan = self.planner.plan(obs, inbox)
             inbox = [*inbox, PeerMessage(self.ctx.name, PLAN_KIND, obs.t, 0.0, plan)]
         res = self.role.step(obs, inbox)
         if plan is not None:
@@ -680,14 +432,3 @@ class LeaderFollowing:
         res.telemetry.update(leading=self.leading, term=self.term)
         return res
 
-
-@controller(config=LeaderConfig, needs_path=True, models=("omni",))
-def build_leader(ctx: RobotContext, cfg: LeaderConfig) -> LeaderFollowing:
-    """Builder of ``leader_nmpc`` (Sec. 5.3)."""
-    return LeaderFollowing(ctx, cfg, lead=True)
-
-
-@controller(config=FollowerConfig, needs_path=True, models=("omni",))
-def build_follower(ctx: RobotContext, cfg: FollowerConfig) -> LeaderFollowing:
-    """Builder of ``follower_nmpc`` (Sec. 5.3)."""
-    return LeaderFollowing(ctx, cfg, lead=False)

@@ -32,7 +32,9 @@ from copath.models import OmniModel
 from copath.mpc import jit_available, jit_options, qp_options
 from copath.paths import Path, wrap_to_pi
 
-from copath.control import VirtualVehicle, controller, Observation, PeerMessage, RobotContext, StepResult
+from copath.control import VirtualVehicle, Observation, PeerMessage, RobotContext, StepResult
+
+from .config import QP_CONICS, LTVConfig
 
 __all__ = [
     "ltv_errors",
@@ -44,12 +46,9 @@ __all__ = [
     "LTVPathFollowingQP",
     "LTVConfig",
     "LTVController",
-    "build",
 ]
 
 logger = logging.getLogger(__name__)
-
-QP_CONICS = ("daqp", "qrqp", "osqp", "qpoases")
 
 
 # -- model -------------------------------------------------------------------------
@@ -284,54 +283,6 @@ class LTVPathFollowingQP:
 # -- controller ----------------------------------------------------------------------
 
 
-@dataclass(frozen=True)
-class LTVConfig:
-    """LTV-MPC QP (Sec. 4.3; published values of E4.3)."""
-
-    horizon: int = 3
-    """Prediction horizon N (E4.3: 3; recommended 3-5). N >= 2: with N = 1 the input
-    reaches y_e only one step later (docs/journal/measurements.md, closed-loop observations from the prototypes (W14))."""
-    Q: tuple[float, float, float, float] = (300.0, 300.0, 7.0, 70.0)
-    """Weights on (x_e, y_e, alpha_e, theta_e) (E4.3)."""
-    R: tuple[float, float, float] = (1.0, 0.001, 3.0)
-    """Weights on (u_1, u_2, u_3) (E4.3)."""
-    u_R: float = 1.0
-    """Desired forward speed [m/s] (E4.3)."""
-    u_max: float = 1.315
-    """Maximum forward speed [m/s] (E4.3; with omega_max = 3 rad/s on r(omega))."""
-    omega_max: float = 3.0
-    """Maximum rotation speed [rad/s] (E4.3)."""
-    mu: float = 0.18
-    """Friction coefficient of (4.26) (E4.3)."""
-    g: float = 9.81
-    """Gravity [m/s^2] (E4.3)."""
-    heading: str = "fixed"
-    """Desired body heading: ``fixed`` (theta_b, omega_b = 0 as in E4.3) or ``tangent``."""
-    theta_b: float = 0.0
-    """Fixed desired heading [rad] (E4.3: 0)."""
-    phi_max: float = 10.0
-    """Bound on the motion-direction curvature |Phi| [1/m] for u_2
-    (docs/reference/ambiguities.md, no bound on the second virtual input (A31); not given in the text, chosen loose)."""
-    qp_solver: str = "daqp"
-    """QP solver (daqp, qrqp, osqp, qpoases)."""
-    jit: bool = True
-    """JIT-compile the condensing Function."""
-    s0: float | None = None
-    """Initial virtual-vehicle position [m]; default: nearest path point."""
-
-    def __post_init__(self) -> None:
-        require(self.horizon >= 2, "horizon", self.horizon, "must be >= 2 (N = 1 cannot act on y_e)")
-        require(all(q >= 0 for q in self.Q), "Q", self.Q, "entries must be >= 0")
-        require(all(r > 0 for r in self.R), "R", self.R, "entries must be > 0 (H positive definite)")
-        require(self.u_R > 0, "u_R", self.u_R, "must be > 0")
-        require(self.u_max > 0, "u_max", self.u_max, "must be > 0")
-        require(self.omega_max > 0, "omega_max", self.omega_max, "must be > 0")
-        require(self.mu > 0 and self.g > 0, "mu", self.mu, "mu and g must be > 0")
-        require(self.heading in ("fixed", "tangent"), "heading", self.heading, "allowed: fixed, tangent")
-        require(self.phi_max > 0, "phi_max", self.phi_max, "must be > 0")
-        require(self.qp_solver in QP_CONICS, "qp_solver", self.qp_solver, f"allowed: {', '.join(QP_CONICS)}")
-
-
 class LTVController:
     """Sec. 4.3 path following: profile, LTV QP and command recovery."""
 
@@ -419,8 +370,3 @@ class LTVController:
         }
         return StepResult(command=cmd, telemetry=tel)
 
-
-@controller(config=LTVConfig, needs_path=True, models=("omni",))
-def build(ctx: RobotContext, cfg: LTVConfig) -> LTVController:
-    """Builder of ``ltv_mpc`` (Sec. 4.3, E4.3)."""
-    return LTVController(ctx, cfg)

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import ClassVar
 
 from copath.config import require
 from copath.occupancy import ARRIVE_TOL_M
@@ -16,13 +15,6 @@ ORIENTATIONS = ("consensus", "given")
 @dataclass(frozen=True)
 class RolesConfig:
     """Parameters of :class:`agent.controllers.roles.controller.RolesController`."""
-
-    handles_cut_off: ClassVar[bool] = True
-    """A robot cut off from every other is handled by the controller (docs/reference/ambiguities.md,
-    robot lost in role assignment (A38): held still, or driving on to a position kept for it within ``R_max``), not by the
-    runtime's hold; the others' safety filters keep it as any robot gone quiet before that
-    rule (forgotten after ``safety.max_age_s``): a static disc covering ``R_max`` more
-    blocked the positions next to it (E6.3: the circle was never completed)."""
 
     formations: tuple[tuple[tuple[float, float], ...], ...] = ()
     """Queue of target formations, each a list of template positions x^d_k [m]; a scenario

@@ -18,12 +18,13 @@ Per task (one formation of the queue) every robot:
 4. feeds w_i (1 unfinished, 0 finished) to the PI dynamic consensus (6.16) and moves on
    to the next formation when its z_i reaches the threshold.
 
-Each step is one state object of :mod:`.phases` (:class:`~.phases.Agreement`,
+Each step is one state object (:class:`~.agreement.Agreement`, and of :mod:`.phases`
 :class:`~.phases.Assignment`, :class:`~.phases.Motion`, :class:`~.phases.TaskSequence`),
-made afresh for every task; this class only orders them.
+made afresh for every task, beside the neighbour table (:class:`~.peers.PeerTable`); this
+class only orders them.
 
 Messages: one broadcast ``role_state`` per step (payload schema in
-``copath.wire.payloads``), tagged with the task index. The graph is range-limited
+:mod:`.payloads`), tagged with the task index. The graph is range-limited
 (Def. 10): neighbours are the robots heard within ``neighbour_timeout_s``. No robot
 knows N. A robot that hears a neighbour already working on a later task follows it
 (the switch "induces the team to abandon the current task", Sec. 6.2.2).
@@ -46,26 +47,18 @@ from typing import Any, Sequence
 import numpy as np
 
 from copath.config import from_table
-from copath.control import controller, Observation, Outgoing, PeerMessage, RobotContext, StepResult
+from copath.control import Observation, Outgoing, PeerMessage, RobotContext, StepResult
 from copath.models import UnicycleModel
 
 from .config import RolesConfig
 from .navigation import NavigationGains
-from .phases import (
-    ASSIGNED,
-    CONSENSUS,
-    MESSAGE_KIND,
-    UNASSIGNED,
-    Agreement,
-    Assignment,
-    Motion,
-    Peer,
-    PeerTable,
-    TaskSequence,
-)
+from .agreement import Agreement
+from .payloads import MESSAGE_KIND
+from .peers import Peer, PeerTable
+from .phases import ASSIGNED, CONSENSUS, UNASSIGNED, Assignment, Motion, TaskSequence
 from .rotation import covariance_from_moments, principal_axis, template_frame, transform_targets
 
-__all__ = ["RolesController", "MESSAGE_KIND", "CONSENSUS", "ASSIGNED", "UNASSIGNED", "build"]
+__all__ = ["RolesController", "MESSAGE_KIND", "CONSENSUS", "ASSIGNED", "UNASSIGNED"]
 
 logger = logging.getLogger(__name__)
 
@@ -331,8 +324,3 @@ class RolesController:
             roles.announce_index = False
         return tel
 
-
-@controller(config=RolesConfig, models=("unicycle",))
-def build(ctx: RobotContext, cfg: RolesConfig) -> RolesController:
-    """Registry builder ``roles`` (Chapter 6)."""
-    return RolesController(ctx, cfg)

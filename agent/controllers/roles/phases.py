@@ -1,13 +1,10 @@
-"""The phases of one robot's Chapter 6 task, one small state object each.
+"""The phases of one robot's Chapter 6 task after the agreement, one small state object each.
 
-:class:`~.controller.RolesController` ties them together; each object here holds the
-state of one phase only, creates every attribute in ``__init__`` and builds no message:
+:class:`~.controller.RolesController` ties them together with the neighbour table
+(:mod:`.peers`) and the agreement on the transform (:mod:`.agreement`, phase 1); each
+object here holds the state of one phase only, creates every attribute in ``__init__`` and
+builds no message:
 
-- :class:`PeerTable`      the neighbours heard within ``neighbour_timeout_s`` (the
-                          range-limited graph of Def. 10), from the newest ``role_state``
-                          of each (:class:`copath.control.LatestMessages`);
-- :class:`Agreement`      phase 1, Algorithm 6.1: average consensus on the moment vector
-                          (6.8)-(6.9) and the local agreement test that ends it;
 - :class:`Assignment`     phase 2, Sec. 6.2.2 and Algorithm 6.2: the target positions of
                           the task, the initial choice by a local Hungarian problem (6.7),
                           claims, rulings of the negotiation and the waiting place of a
@@ -23,27 +20,22 @@ from __future__ import annotations
 
 import logging
 import math
-from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
-from copath.control import LatestMessages, PeerMessage
 
 from .assignment import Claim, RoleBook, Ruling, local_hungarian, nearest_position
 from .config import RolesConfig
-from .averaging import AverageConsensus, NeighbourContribution, PIConsensus
+from .averaging import PIConsensus
 from .navigation import NavigationGains, parking_point, polar_control, repulsive_shift
-from .rotation import moment_vector
+from .payloads import ASSIGNED, CONSENSUS, UNASSIGNED
+from .peers import Peer
 
 __all__ = [
-    "MESSAGE_KIND",
     "CONSENSUS",
     "ASSIGNED",
     "UNASSIGNED",
-    "Peer",
-    "PeerTable",
-    "Agreement",
     "Assignment",
     "Motion",
     "TaskSequence",
@@ -51,184 +43,12 @@ __all__ = [
 
 logger = logging.getLogger(__name__)
 
-MESSAGE_KIND = "role_state"
-CONSENSUS, ASSIGNED, UNASSIGNED = 0, 1, 2
-"""Phases of the assignment: agreeing on the transform; holding a position; without a position."""
-
-N_MOMENTS = 5
-"""Size of the moment vector (6.8)-(6.9): x, y, x^2, xy, y^2."""
 
 
 # -- neighbours ------------------------------------------------------------------------
 
 
-@dataclass
-class Peer:
-    """Newest ``role_state`` of one neighbour."""
-
-    heard: float
-    """Own clock when it was received [s]."""
-    age: float
-    """Age of the message when it was received [s] (its age at t is age + t - heard)."""
-    position: np.ndarray
-    """Sender position extrapolated to ``heard`` [m]."""
-    velocity: np.ndarray
-    task: int
-    index: int
-    phase: int
-    payload: dict[str, Any] = field(repr=False)
-
-
-def _has_position(m: PeerMessage) -> bool:
-    return m.position is not None or m.payload.get("pos") is not None
-
-
-class PeerTable:
-    """Neighbours of a range-limited graph (Def. 10): robots heard within ``timeout`` [s]."""
-
-    def __init__(self, timeout: float) -> None:
-        self.timeout = float(timeout)
-        self.inbox = LatestMessages(kinds=(MESSAGE_KIND,), accept=_has_position)
-        self.peers: dict[str, Peer] = {}
-        self.lost: frozenset[str] = frozenset()
-        """Robots known to be gone (``Observation.lost``): out of the graph at once."""
-        self._fresh: tuple[float, dict[str, Peer], dict[int, dict[str, Peer]]] | None = None
-        """(t, neighbours at t, task -> those working on it), reset by :meth:`ingest`."""
-
-    def ingest(self, inbox, t: float, lost: frozenset[str] = frozenset()) -> None:
-        """Take in one step's messages (newest per neighbour by stamp); ``lost`` are the
-        robots known to be gone (docs/reference/ambiguities.md, robot lost in role assignment (A38))."""
-        self._fresh = None
-        self.lost = frozenset(lost)
-        for got in self.inbox.update(inbox, t):
-            pl = dict(got.payload)
-            pos = got.position if got.position is not None else pl.get("pos")
-            vel = np.asarray(pl.get("vel") or (0.0, 0.0), dtype=float)
-            self.peers[got.sender] = Peer(
-                heard=got.received_at,
-                age=max(got.message.age, 0.0),
-                position=np.asarray(pos, dtype=float) + vel * max(got.message.age, 0.0),
-                velocity=vel,
-                task=int(pl.get("task", -1)),
-                index=int(pl.get("index", 0)),
-                phase=int(pl.get("phase", CONSENSUS)),
-                payload=pl,
-            )
-
-    def fresh(self, t: float) -> dict[str, Peer]:
-        """Neighbours N_i at time t (computed once per step: callers must not modify it)."""
-        if self._fresh is None or self._fresh[0] != t:
-            lost = self.lost
-            self._fresh = (t, {n: q for n, q in self.peers.items()
-                               if t - q.heard <= self.timeout and n not in lost}, {})
-        return self._fresh[1]
-
-    def wrecks(self) -> list[np.ndarray]:
-        """Last heard positions of the lost robots: a robot that went quiet or died is
-        still somewhere, so it stays an obstacle where it was last heard (robot lost in role assignment, A38)."""
-        return [self.peers[n].position for n in sorted(self.lost) if n in self.peers]
-
-    def cut_off(self, team: frozenset[str]) -> bool:
-        """Every other robot of the team is lost (robot lost in role assignment, A38): most likely this robot's own radio
-        has gone quiet, not all of theirs, and the others have lost it in turn. (Its
-        neighbours alone would not do: in a range-limited graph a robot may have heard only
-        the one that was lost.)"""
-        return bool(team) and team <= self.lost
-
-    def last_stamp(self) -> float:
-        """Send stamp of the newest message heard from any robot [s] (-inf: none): a radio
-        that went quiet stopped both ways, so the others last heard this robot about then."""
-        return max((q.heard - q.age for q in self.peers.values()), default=-math.inf)
-
-    def same_task(self, t: float, task: int) -> dict[str, Peer]:
-        """Neighbours working on ``task`` (once per step and task: callers must not modify it)."""
-        fresh = self.fresh(t)
-        by_task = self._fresh[2]
-        if task not in by_task:
-            by_task[task] = {n: q for n, q in fresh.items() if q.task == task}
-        return by_task[task]
-
-
 # -- phase 1: agreement on the formation's placement ----------------------------------
-
-
-class Agreement:
-    """Average consensus on the moment vector (Algorithm 6.1) and its local stop test.
-
-    The robot adopts the estimate once neighbours' estimates and its own change over
-    ``consensus_hold_s`` stay within ``consensus_tol`` (or after ``consensus_timeout_s``).
-
-    A same-task neighbour stays a consensus neighbour while it was heard within the
-    longer of ``neighbour_timeout_s`` and ``consensus_hold_s``: under loss a neighbour
-    that drops out of the range-limited graph for a few silent steps and comes back
-    would change every degree, hence every Metropolis weight, and stop the iteration
-    each time (docs/reference/envelope.md). Its edge flow is state, so its newest one is used.
-    """
-
-    def __init__(self, name: str, p: np.ndarray, cfg: RolesConfig) -> None:
-        self.name = name
-        self.cfg = cfg
-        self.ac = AverageConsensus(moment_vector(p), gain=cfg.consensus_gain)
-        self.history: list[tuple[float, np.ndarray, float]] = []
-        """(t, estimate, largest neighbour disagreement) over the hold window."""
-        self.neighbours: dict[str, NeighbourContribution] = {}
-        self.memory_s = max(cfg.neighbour_timeout_s, cfg.consensus_hold_s)
-        """A neighbour counts while heard within this [s]."""
-        self.heard: dict[str, Peer] = {}
-        """Newest same-task state of every consensus neighbour."""
-
-    def step(self, same: dict[str, Peer], t: float | None = None, lost: frozenset[str] = frozenset()) -> np.ndarray:
-        """One consensus iteration over the neighbours' latest contributions; the estimate.
-        A robot in ``lost`` leaves at once instead of after the memory (robot lost in role assignment, A38)."""
-        self.heard.update(same)
-        if t is not None:
-            self.heard = {n: q for n, q in self.heard.items()
-                          if n in same or (t - q.heard <= self.memory_s and n not in lost)}
-        nbrs = {}
-        for n, q in (self.heard if t is not None else same).items():
-            x = q.payload.get("ac_x")
-            if not x or len(x) != N_MOMENTS:
-                continue
-            to = q.payload.get("ac_to") or []
-            flows = q.payload.get("ac_a") or []
-            echoes = q.payload.get("ac_e") or []
-            a = np.zeros(N_MOMENTS)
-            echo = np.zeros(N_MOMENTS)  # it has not heard us yet: nothing of ours applied
-            if self.name in to:
-                k = to.index(self.name)
-                a = np.asarray(flows[k * N_MOMENTS:(k + 1) * N_MOMENTS], dtype=float)
-                if len(echoes) == len(flows):
-                    echo = np.asarray(echoes[k * N_MOMENTS:(k + 1) * N_MOMENTS], dtype=float)
-            nbrs[n] = NeighbourContribution(np.asarray(x, dtype=float), int(q.payload.get("ac_deg", 0)), a, echo)
-        self.neighbours = nbrs
-        return self.ac.step(nbrs)
-
-    def settled(self, est: np.ndarray, t: float, task_start: float) -> tuple[bool, bool]:
-        """(agreed, timed out) after recording this step's estimate."""
-        cfg = self.cfg
-        spread = max((float(np.max(np.abs(c.estimate - est))) for c in self.neighbours.values()), default=math.inf)
-        self.history.append((t, est.copy(), spread))
-        hold = cfg.consensus_hold_s
-        window = [h for h in self.history if h[0] >= t - hold - 1e-9]
-        self.history = window
-        timed_out = t - task_start >= cfg.consensus_timeout_s
-        agreed = (
-            t - task_start >= hold
-            and all(h[2] <= cfg.consensus_tol for h in window)
-            and float(np.max(np.abs(window[0][1] - est))) <= cfg.consensus_tol
-        )
-        return agreed, timed_out
-
-    def payload(self) -> dict[str, Any]:
-        """The consensus fields of ``role_state`` (edge-flow form, see :class:`AverageConsensus`)."""
-        to = sorted(self.neighbours)
-        return {
-            "ac_x": [float(c) for c in self.ac.estimate],
-            "ac_to": to,
-            "ac_a": [float(c) for n in to for c in self.ac.flow_to(n)],
-            "ac_e": [float(c) for n in to for c in self.ac.echo_to(n)],
-            "ac_deg": len(to),
-        }
 
 
 # -- phase 2: assignment and negotiation ----------------------------------------------

@@ -57,18 +57,9 @@ CONTROLLERS: dict[str, str] = {
 """Built-in name -> its family's factory (``agent/controllers/<family>/__init__.py``). A
 family's package declares its factories and loads nothing heavy: its law (and CasADi) is
 imported when a robot builds it, so resolving a name to learn a family's declarations
-(geometry, payloads, done rule) stays light."""
-
-
-def _declare_builtin_families() -> None:
-    """Load every built-in family's declarations (light: no law, no CasADi), so that every
-    process that loads this registry validates every built-in message kind (a family
-    registers its payload schemas with the wire when it declares its factory)."""
-    for package in dict.fromkeys(target.partition(":")[0] for target in CONTROLLERS.values()):
-        importlib.import_module(package)
-
-
-_declare_builtin_families()
+(geometry, payloads, done rule) stays light. Only the families a process resolves are
+loaded: a robot's own, the scenario's in the orchestrator and the metrics; each registers
+its payload schemas with the wire as it loads."""
 
 
 def _entry_points() -> dict[str, importlib.metadata.EntryPoint]:

@@ -10,7 +10,7 @@ from copath.occupancy import LastFormationWatch, first_occupied, occupied, queue
 from copath.scenario import load_scenario
 from copath.wire.messages import Event, Telemetry
 from orchestrator.run.inprocess import run_scenario
-from sim.node import TaskWatch
+from sim.node import TaskWatch, sim_tasks
 from tests.conftest import config
 
 SQUARE = [[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]]
@@ -76,6 +76,11 @@ def test_the_task_queues_reach_the_simulator_process_unchanged():
         assert np.allclose(np.asarray(back[n].formations[-1], dtype=float), np.asarray(q.formations[-1], dtype=float))
     with pytest.raises(ValueError, match="task queues"):
         queues_from_json('{"r1": {"formations": 3}}')
+    # the process: --tasks, else the families asked (copath sim), else refused for tasks_done
+    assert list(sim_tasks(s, queues_to_json(queues), None)) == list(queues)
+    assert sim_tasks(s, None, task_queues) == queues
+    with pytest.raises(ValueError, match="--tasks"):
+        sim_tasks(s, None, None)
 
 
 @pytest.fixture(scope="module")

@@ -7,6 +7,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
+import agent.controllers.consensus  # noqa: F401  (declaring the family registers its coord_state schema)
 from copath.paths import wrap_to_pi
 from copath.scenario import NetworkConfig, Partition
 from copath.wire.faults import FaultyInbox, LinkFaults

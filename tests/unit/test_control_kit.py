@@ -2,6 +2,7 @@
 solver options. Each piece replaces copies that the built-in controllers used to carry."""
 
 import math
+import os
 
 import numpy as np
 import pytest
@@ -9,6 +10,7 @@ import pytest
 from copath.control import LatestMessages, Observation, PathTable, PeerMessage, RobotContext, VirtualVehicle
 from copath.models import OmniModel, UnicycleModel, rotation_speed_limit
 from copath.paths import circle, eight_curve, lemniscate, line, sinusoid
+from tests.conftest import REPO
 
 
 def _msg(sender, stamp, kind="k", age=0.1, **payload):
@@ -243,3 +245,42 @@ def test_roles_phases_keep_their_state_in_init_and_three_robots_form_a_triangle(
     for n, c in ctls.items():
         assert c.tasks.done
         assert np.hypot(*(c.roles.targets[claims[n]] - poses[n][:2])) < 2 * c.cfg.arrive_tol
+
+
+# -- a family declares itself on its factory (issue 23) --------------------------------------
+
+
+def test_resolving_every_builtin_name_loads_no_law_and_registers_each_familys_payloads():
+    """A family's package declares its factories from light modules (config, payloads,
+    geometry, done rule); resolving a name loads no law and no CasADi, in a fresh process,
+    and registers the family's message schemas with the wire."""
+    import subprocess
+    import sys
+
+    code = ("import sys\nfrom agent.controllers import CONTROLLERS, resolve_controller\n"
+            "from copath.wire.payloads import PAYLOADS\n"
+            "fs = {n: resolve_controller(n) for n in CONTROLLERS}\n"
+            "laws = sorted(m for m in sys.modules if m.startswith('agent.controllers.') and m.endswith('.controller'))\n"
+            "print(laws, 'casadi' in sys.modules, sorted(PAYLOADS), "
+            "sorted(n for n, f in fs.items() if f.geometry), sorted(n for n, f in fs.items() if f.tasks), "
+            "sorted(n for n, f in fs.items() if f.handles_cut_off), sorted(n for n, f in fs.items() if f.handles_obstacles))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, cwd=REPO,
+                         env={**os.environ, "PYTHONPATH": str(REPO)})
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.split("\n")[0] == (
+        "[] False ['assumed_traj', 'coord_state', 'follower_status', 'formation_state', 'hetero_cmd', "
+        "'hetero_report', 'leader_plan', 'role_state'] ['consensus', 'dmpc', 'follower_nmpc', "
+        "'formation_switching', 'hetero_follower', 'hetero_leader', 'leader_nmpc'] ['roles'] ['roles'] "
+        "['unicycle_nmpc']")
+
+
+def test_a_factory_takes_only_known_declarations_and_one_schema_per_kind():
+    from copath.control import controller
+    from copath.wire.payloads import register_payloads
+
+    with pytest.raises(TypeError, match="unknown declarations"):
+        controller(geometyr=None)
+    register_payloads({"test_kind_x": {"a": "float"}})
+    register_payloads({"test_kind_x": {"a": "float"}})  # the same again: fine
+    with pytest.raises(ValueError, match="registered twice"):
+        register_payloads({"test_kind_x": {"a": "int"}})

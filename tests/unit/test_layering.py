@@ -103,3 +103,66 @@ def test_the_views_take_the_sensor_ring_from_the_library():
     files = sorted((REPO / "orchestrator" / "view").rglob("*.py"))
     assert files
     assert not _offending(files, ("agent.runtime",))
+
+
+# -- controller families (issue 23): a family is one unit, declared on its factory ----------
+
+CONTROLLERS_DIR = REPO / "agent" / "controllers"
+
+
+def _family_names() -> set[str]:
+    """The registered controller names (the registry's name table, read from its source)."""
+    tree = ast.parse((CONTROLLERS_DIR / "__init__.py").read_text())
+    for node in tree.body:
+        target = node.target if isinstance(node, ast.AnnAssign) else (node.targets[0] if isinstance(node, ast.Assign)
+                                                                         else None)
+        if getattr(target, "id", None) == "CONTROLLERS":
+            return {k.value for k in node.value.keys}
+    raise AssertionError("agent/controllers/__init__.py has no CONTROLLERS table")
+
+
+def test_controllers_never_import_the_orchestrator():
+    files = sorted(CONTROLLERS_DIR.rglob("*.py"))
+    assert len(files) > 20
+    assert not _offending(files, ("orchestrator",))
+
+
+def _names_compared(path: pathlib.Path, names: set[str]) -> list[str]:
+    """Registered controller names a file compares something with (==, !=, in, not in),
+    as ``line: name``."""
+    found = []
+    for node in ast.walk(ast.parse(path.read_text(), filename=str(path))):
+        if not isinstance(node, ast.Compare):
+            continue
+        for side in [node.left, *node.comparators]:
+            consts = [side] if isinstance(side, ast.Constant) else (
+                list(side.elts) if isinstance(side, (ast.Tuple, ast.List, ast.Set)) else [])
+            found += [f"{node.lineno}: {c.value}" for c in consts
+                      if isinstance(c, ast.Constant) and isinstance(c.value, str) and c.value in names]
+    return found
+
+
+# a benchmark of one family's own solver (orchestrator bench solve: the LTV QP) is about that family
+FAMILY_IMPORT_EXCEPTIONS = {"orchestrator/studies/bench/solve.py"}
+
+
+def test_nothing_outside_a_family_names_it():
+    """No module of the programs or the library outside ``agent/controllers/`` compares a
+    controller name or imports a family's modules: the metrics, the simulator's stop rule and
+    validation ask the factory (geometry, payloads, tasks, handles_*). The registry's name
+    table (``agent/controllers/__init__.py``) is the one place that names the families. (The
+    families themselves share pieces of law, e.g. the heterogeneous team calls the consensus
+    tracking law, and a family may name its own controller types.)"""
+    names = _family_names()
+    families = {d.name for d in CONTROLLERS_DIR.iterdir() if (d / "__init__.py").exists()}
+    assert "consensus" in names and "roles" in families
+    files = [f for pkg in ("agent", "sim", "orchestrator", "copath") for f in sorted((REPO / pkg).rglob("*.py"))
+             if CONTROLLERS_DIR not in f.parents]
+    assert len(files) > 50
+    compared = {str(f.relative_to(REPO)): _names_compared(f, names) for f in files}
+    assert not {f: c for f, c in compared.items() if c}
+    internals = {str(f.relative_to(REPO)): sorted(m for m in _modules(f)
+                                                  if m.split(".")[:2] == ["agent", "controllers"] and len(m.split(".")) > 2
+                                                  and m.split(".")[2] in families)
+                 for f in files}
+    assert not {f: m for f, m in internals.items() if m and f not in FAMILY_IMPORT_EXCEPTIONS}

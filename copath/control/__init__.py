@@ -5,7 +5,11 @@ A user controller imports from here only::
 
     from copath.control import Observation, PeerMessage, Outgoing, StepResult, RobotContext
 
-See ``docs/reference/controllers.md`` for the contract and how to test a controller.
+See ``docs/reference/controllers.md`` for the contract and how to test a controller. A
+controller family declares itself on its factory (:func:`controller`): its parameters, and
+what the rest of copath asks it instead of its name: its team geometry
+(:mod:`copath.team`), its message schemas, its done rule (:mod:`copath.occupancy`) and
+whether it handles being cut off or obstacles itself.
 
 The kit (shared by the built-in controllers; ``docs/reference/controllers-notes.md`` says what
 moved where):

@@ -5,7 +5,7 @@ A robot that has lost every robot it has heard, at least one by silence, is cut 
 likely its own radio went quiet. Under ``run.cut_off = "hold"`` its runtime commands zero
 until it hears a robot again (:class:`HoldStage`), and every other robot's safety filter
 keeps it as a static disc for at most :attr:`CutOffRule.silent_hold_s` after its last stamp.
-A controller that handles being cut off itself opts out (its parameter class says
+A controller that handles being cut off itself opts out (its family's factory declares
 ``handles_cut_off = True``: the roles controller, docs/reference/ambiguities.md, robot lost
 in role assignment (A38)); its share of the rule lives in that controller. The detection is the liveness
 stage's (:class:`agent.stages.liveness.LivenessStage`)."""

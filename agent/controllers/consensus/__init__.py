@@ -9,16 +9,30 @@ of unicycles (Sec. 5.5).
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 from copath.control import RobotContext, controller
 
 from .config import ConsensusConfig
-from .geometry import consensus_geometry
 from .payloads import PAYLOADS
+
+if TYPE_CHECKING:
+    from copath.scenario import Scenario
+    from copath.team import TeamGeometry
 
 __all__ = ["build", "ConsensusConfig"]
 
 
-@controller(config=ConsensusConfig, needs_path=True, geometry=consensus_geometry, payloads=PAYLOADS)
+def team_geometry(scenario: "Scenario") -> "TeamGeometry | None":
+    """The team's geometry for grading from the truth,
+    :func:`.geometry.consensus_geometry`, imported here: a robot that only builds the law
+    never loads it."""
+    from .geometry import consensus_geometry  # noqa: PLC0415
+
+    return consensus_geometry(scenario)
+
+
+@controller(config=ConsensusConfig, needs_path=True, geometry=team_geometry, payloads=PAYLOADS)
 def build(ctx: RobotContext, cfg: ConsensusConfig):
     """Builder of ``consensus`` (Sec. 5.5)."""
     from .controller import ConsensusController  # noqa: PLC0415 (the law loads with the robot only)

@@ -9,16 +9,30 @@
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 from copath.control import RobotContext, controller
 
 from .config import FormationSwitchingConfig
-from .geometry import switching_geometry
 from .payloads import PAYLOADS
+
+if TYPE_CHECKING:
+    from copath.scenario import Scenario
+    from copath.team import TeamGeometry
 
 __all__ = ["build", "FormationSwitchingConfig"]
 
 
-@controller(config=FormationSwitchingConfig, needs_path=True, models=("unicycle",), geometry=switching_geometry,
+def team_geometry(scenario: "Scenario") -> "TeamGeometry | None":
+    """The team's geometry for grading from the truth,
+    :func:`.geometry.switching_geometry`, imported here: a robot that only builds the law
+    never loads it."""
+    from .geometry import switching_geometry  # noqa: PLC0415
+
+    return switching_geometry(scenario)
+
+
+@controller(config=FormationSwitchingConfig, needs_path=True, models=("unicycle",), geometry=team_geometry,
             payloads=PAYLOADS)
 def build(ctx: RobotContext, cfg: FormationSwitchingConfig):
     """Registry builder ``formation_switching`` (E6.6)."""

@@ -10,16 +10,30 @@ commanding unicycle followers (``hetero_follower``).
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 from copath.control import RobotContext, controller
 
 from .config import HeteroFollowerConfig, HeteroLeaderConfig
-from .geometry import heterogeneous_geometry
 from .payloads import PAYLOADS
+
+if TYPE_CHECKING:
+    from copath.scenario import Scenario
+    from copath.team import TeamGeometry
 
 __all__ = ["build_leader", "build_follower", "HeteroLeaderConfig", "HeteroFollowerConfig"]
 
 
-@controller(config=HeteroLeaderConfig, needs_path=True, models=("omni",), geometry=heterogeneous_geometry,
+def team_geometry(scenario: "Scenario") -> "TeamGeometry | None":
+    """The team's geometry for grading from the truth,
+    :func:`.geometry.heterogeneous_geometry`, imported here: a robot that only builds the law
+    never loads it."""
+    from .geometry import heterogeneous_geometry  # noqa: PLC0415
+
+    return heterogeneous_geometry(scenario)
+
+
+@controller(config=HeteroLeaderConfig, needs_path=True, models=("omni",), geometry=team_geometry,
             payloads=PAYLOADS)
 def build_leader(ctx: RobotContext, cfg: HeteroLeaderConfig):
     """Builder of ``hetero_leader`` (Sec. 5.5.5)."""
@@ -28,7 +42,7 @@ def build_leader(ctx: RobotContext, cfg: HeteroLeaderConfig):
     return HeteroLeader(ctx, cfg)
 
 
-@controller(config=HeteroFollowerConfig, models=("unicycle",), geometry=heterogeneous_geometry, payloads=PAYLOADS)
+@controller(config=HeteroFollowerConfig, models=("unicycle",), geometry=team_geometry, payloads=PAYLOADS)
 def build_follower(ctx: RobotContext, cfg: HeteroFollowerConfig):
     """Builder of ``hetero_follower`` (Sec. 5.5.5)."""
     from .controller import HeteroFollower  # noqa: PLC0415

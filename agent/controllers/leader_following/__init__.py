@@ -10,16 +10,30 @@
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 from copath.control import RobotContext, controller
 
 from .config import FollowerConfig, LeaderConfig
-from .geometry import leader_following_geometry
 from .payloads import PAYLOADS
+
+if TYPE_CHECKING:
+    from copath.scenario import Scenario
+    from copath.team import TeamGeometry
 
 __all__ = ["build_leader", "build_follower", "LeaderConfig", "FollowerConfig"]
 
 
-@controller(config=LeaderConfig, needs_path=True, models=("omni",), geometry=leader_following_geometry,
+def team_geometry(scenario: "Scenario") -> "TeamGeometry | None":
+    """The team's geometry for grading from the truth,
+    :func:`.geometry.leader_following_geometry`, imported here: a robot that only builds the law
+    never loads it."""
+    from .geometry import leader_following_geometry  # noqa: PLC0415
+
+    return leader_following_geometry(scenario)
+
+
+@controller(config=LeaderConfig, needs_path=True, models=("omni",), geometry=team_geometry,
             payloads=PAYLOADS)
 def build_leader(ctx: RobotContext, cfg: LeaderConfig):
     """Builder of ``leader_nmpc`` (Sec. 5.3)."""
@@ -28,7 +42,7 @@ def build_leader(ctx: RobotContext, cfg: LeaderConfig):
     return LeaderFollowing(ctx, cfg, lead=True)
 
 
-@controller(config=FollowerConfig, needs_path=True, models=("omni",), geometry=leader_following_geometry,
+@controller(config=FollowerConfig, needs_path=True, models=("omni",), geometry=team_geometry,
             payloads=PAYLOADS)
 def build_follower(ctx: RobotContext, cfg: FollowerConfig):
     """Builder of ``follower_nmpc`` (Sec. 5.3)."""

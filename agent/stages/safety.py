@@ -55,6 +55,8 @@ class SafetyStage:
         self._faults = faults
         self._counters = counters
         self._listened = listened
+        self._early: dict[str, PeerEnvelope] = {}
+        """Before the first step: the newest overheard envelope of each sender (:meth:`overhear`)."""
         """Senders whose envelopes also reach the robot's inbox (whose trust stage counts their bad stamps)."""
 
     @property
@@ -71,13 +73,23 @@ class SafetyStage:
     def overhear(self, env: PeerEnvelope) -> None:
         """Accept an overheard envelope: only its sender's position and stamp are used.
 
-        Before the first step there is no clock to check a stamp against, so nothing is
-        overheard (the filter needs current positions, not ones from before a restart). A
+        Before the first step there is no clock to check a stamp against: the newest
+        envelope of each sender is kept and checked at the first step's clock, as the trust
+        stage keeps the inbox's (a robot restarted mid-run sees who is round it in its first
+        period, not one period later; one from before the window is refused then). A
         neighbour's envelope also reaches the inbox, whose check counts a bad stamp; here
         only the others' are counted, so one bad message is one reject."""
-        if self._overhear is None or env.sender == self.robot or not self._trust.started:
+        if self._overhear is None or env.sender == self.robot:
             return
-        if self._trust.admit(env, "overheard", record=env.sender not in self._listened):
+        if not self._trust.started:
+            kept = self._early.get(env.sender)
+            if kept is None or env.stamp >= kept.stamp:
+                self._early[env.sender] = env
+            return
+        self._admit(env)
+
+    def _admit(self, env: PeerEnvelope, record: bool = True) -> None:
+        if self._trust.admit(env, "overheard", record=record and env.sender not in self._listened):
             self._counters.add("overheard")
             self._overhear.push(env.sender, env.stamp, env)
 
@@ -92,6 +104,10 @@ class SafetyStage:
         """The filtered command at ``now`` (the command itself when ``held``: the others keep
         out of a held robot's disc)."""
         t0 = time.perf_counter()
+        if self._early:  # the first step: what was overheard before it, at this clock
+            early, self._early = self._early, {}
+            for env in early.values():
+                self._admit(env, record=False)  # stale by the wait, not bad: no reject
         for env in self._overhear.pop_ready(now) if self._overhear is not None else ():
             liveness.overheard(env.sender, now)
             if self._faults.in_range(env, pose):

@@ -237,10 +237,28 @@ def test_the_guard_takes_a_keyword_config_and_names_a_bad_field():
 def test_the_runtime_overhears_nothing_before_its_first_step_and_counts_a_strangers_bad_stamp_once():
     scen = _e55()
     rt = RobotRuntime(scen, "r3", KEYS)  # r3 listens to r2 only
-    rt.overhear(_env("r1", 0.0))
+    rt.overhear(_env("r1", -60.0))  # from before a restart: stale at the first clock
     assert "overheard" not in rt.counters.extra
     rt.step(Obs(50, 5.0, list(scen.robot("r3").pose)), 5.0)
+    assert "overheard" not in rt.counters.extra and rt.reject_log.total == 0  # dropped, not a reject
     rt.overhear(_env("r1", 4.9))
     rt.overhear(_env("r1", -50.0))  # a stranger's bad stamp: counted here
     rt.overhear(_env("r2", -50.0))  # a neighbour's: counted where its inbox copy arrives
     assert rt.counters.extra["overheard"] == 1 and rt.reject_log.total == 1
+
+
+def test_a_restarted_robot_sees_in_its_first_step_who_it_overheard_before_it():
+    # a robot restarted mid-run hears the others' broadcasts before its first step: the newest
+    # of each sender is kept and goes to its safety filter at the first step's clock (before,
+    # it saw no one for a period, docs/reference/faults.md "Restart")
+    scen = _e55()
+    rt = RobotRuntime(scen, "r3", KEYS)
+    r1 = scen.robot("r1").pose
+    rt.overhear(_env("r1", 4.8, pos=r1[:2], seq=7))
+    rt.overhear(_env("r1", 4.9, pos=r1[:2], seq=8))  # the newer one is kept
+    rt.overhear(_env("r2", 4.9, pos=scen.robot("r2").pose[:2], seq=3))
+    assert "overheard" not in rt.counters.extra
+    rt.step(Obs(50, 5.0, list(scen.robot("r3").pose)), 5.0)
+    assert rt.counters.extra["overheard"] == 2 and rt.reject_log.total == 0
+    seen = [nb.position for nb in rt.safety.guard.neighbours(5.0)]
+    assert len(seen) == 2 and all(np.allclose(p, q) for p, q in zip(sorted(seen), sorted([r1[:2], scen.robot("r2").pose[:2]])))

@@ -31,11 +31,11 @@ moved where):
 """
 
 from .contract import Controller, Observation, Outgoing, PeerMessage, RobotContext, StepResult
-from .factory import ControllerFactory, as_factory, controller
+from .factory import ControllerFactory, as_factory, controller, deferred
 from .inbox import LatestMessages, Received
 from .virtual import VirtualVehicle
 from copath.paths import PathTable
 
 __all__ = ["Controller", "Observation", "Outgoing", "PeerMessage", "RobotContext", "StepResult",
-           "ControllerFactory", "controller", "as_factory",
+           "ControllerFactory", "deferred", "controller", "as_factory",
            "LatestMessages", "Received", "PathTable", "VirtualVehicle"]

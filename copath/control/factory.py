@@ -29,6 +29,7 @@ its parameters are then passed through unchecked.
 from __future__ import annotations
 
 import dataclasses
+import importlib
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Callable, Mapping
 
@@ -41,7 +42,23 @@ if TYPE_CHECKING:  # type names only: declaring a factory stays light
     from ..scenario import Scenario
     from ..team import TeamGeometry
 
-__all__ = ["ControllerFactory", "controller", "as_factory"]
+__all__ = ["ControllerFactory", "controller", "as_factory", "deferred"]
+
+
+@dataclass(frozen=True)
+class deferred:  # noqa: N801 (used like a function: geometry=deferred("pkg.mod:fn"))
+    """A declaration that imports its function when first called: ``deferred("pkg.mod:fn")(*a)``
+    is ``pkg.mod.fn(*a)``. A family declares its team geometry this way, so that a robot,
+    which resolves its factory to build its law, never loads the grading code, and the
+    metrics, which grade, never load the law. Two with the same target are equal (a team
+    whose robots declare the same geometry)."""
+
+    target: str
+    """``package.module:function``."""
+
+    def __call__(self, *args: Any, **kwargs: Any) -> Any:
+        module, _, attr = self.target.partition(":")
+        return getattr(importlib.import_module(module), attr)(*args, **kwargs)
 
 
 @dataclass(frozen=True)

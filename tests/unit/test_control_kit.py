@@ -284,3 +284,18 @@ def test_a_factory_takes_only_known_declarations_and_one_schema_per_kind():
     register_payloads({"test_kind_x": {"a": "float"}})  # the same again: fine
     with pytest.raises(ValueError, match="registered twice"):
         register_payloads({"test_kind_x": {"a": "int"}})
+
+
+def test_a_deferred_declaration_imports_its_function_at_its_first_call(tmp_path, monkeypatch):
+    import sys
+
+    from copath.control import deferred
+
+    (tmp_path / "late_geometry.py").write_text("CALLS = []\ndef geo(s):\n    CALLS.append(s)\n    return s * 2\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    d = deferred("late_geometry:geo")
+    assert "late_geometry" not in sys.modules  # declaring imports nothing
+    assert d == deferred("late_geometry:geo") and len({d, deferred("late_geometry:geo")}) == 1
+    assert d != deferred("late_geometry:other")
+    assert d(21) == 42 and sys.modules["late_geometry"].CALLS == [21]
+    monkeypatch.delitem(sys.modules, "late_geometry")

@@ -9,27 +9,17 @@ of unicycles (Sec. 5.5).
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
-from copath.control import RobotContext, controller
+from copath.control import RobotContext, controller, deferred
 
 from .config import ConsensusConfig
 from .payloads import PAYLOADS
 
-if TYPE_CHECKING:
-    from copath.scenario import Scenario
-    from copath.team import TeamGeometry
-
 __all__ = ["build", "ConsensusConfig"]
 
 
-def team_geometry(scenario: "Scenario") -> "TeamGeometry | None":
-    """The team's geometry for grading from the truth,
-    :func:`.geometry.consensus_geometry`, imported here: a robot that only builds the law
-    never loads it."""
-    from .geometry import consensus_geometry  # noqa: PLC0415
-
-    return consensus_geometry(scenario)
+team_geometry = deferred("agent.controllers.consensus.geometry:consensus_geometry")
+"""The team's geometry for grading from the truth (:func:`.geometry.consensus_geometry`), imported when
+the metrics ask: a robot that only builds the law never loads it."""
 
 
 @controller(config=ConsensusConfig, needs_path=True, geometry=team_geometry, payloads=PAYLOADS)

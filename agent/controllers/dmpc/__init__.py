@@ -9,27 +9,17 @@ paths (Sec. 5.4, Algorithm 5.1).
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
-from copath.control import RobotContext, controller
+from copath.control import RobotContext, controller, deferred
 
 from .config import DMPCConfig
 from .payloads import PAYLOADS
 
-if TYPE_CHECKING:
-    from copath.scenario import Scenario
-    from copath.team import TeamGeometry
-
 __all__ = ["build", "DMPCConfig"]
 
 
-def team_geometry(scenario: "Scenario") -> "TeamGeometry | None":
-    """The team's geometry for grading from the truth,
-    :func:`.geometry.dmpc_geometry`, imported here: a robot that only builds the law
-    never loads it."""
-    from .geometry import dmpc_geometry  # noqa: PLC0415
-
-    return dmpc_geometry(scenario)
+team_geometry = deferred("agent.controllers.dmpc.geometry:dmpc_geometry")
+"""The team's geometry for grading from the truth (:func:`.geometry.dmpc_geometry`), imported when
+the metrics ask: a robot that only builds the law never loads it."""
 
 
 @controller(config=DMPCConfig, needs_path=True, models=("omni",), geometry=team_geometry, payloads=PAYLOADS)

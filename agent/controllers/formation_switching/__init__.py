@@ -9,27 +9,17 @@
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
-from copath.control import RobotContext, controller
+from copath.control import RobotContext, controller, deferred
 
 from .config import FormationSwitchingConfig
 from .payloads import PAYLOADS
 
-if TYPE_CHECKING:
-    from copath.scenario import Scenario
-    from copath.team import TeamGeometry
-
 __all__ = ["build", "FormationSwitchingConfig"]
 
 
-def team_geometry(scenario: "Scenario") -> "TeamGeometry | None":
-    """The team's geometry for grading from the truth,
-    :func:`.geometry.switching_geometry`, imported here: a robot that only builds the law
-    never loads it."""
-    from .geometry import switching_geometry  # noqa: PLC0415
-
-    return switching_geometry(scenario)
+team_geometry = deferred("agent.controllers.formation_switching.geometry:switching_geometry")
+"""The team's geometry for grading from the truth (:func:`.geometry.switching_geometry`), imported when
+the metrics ask: a robot that only builds the law never loads it."""
 
 
 @controller(config=FormationSwitchingConfig, needs_path=True, models=("unicycle",), geometry=team_geometry,

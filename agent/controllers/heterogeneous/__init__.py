@@ -10,27 +10,17 @@ commanding unicycle followers (``hetero_follower``).
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
-from copath.control import RobotContext, controller
+from copath.control import RobotContext, controller, deferred
 
 from .config import HeteroFollowerConfig, HeteroLeaderConfig
 from .payloads import PAYLOADS
 
-if TYPE_CHECKING:
-    from copath.scenario import Scenario
-    from copath.team import TeamGeometry
-
 __all__ = ["build_leader", "build_follower", "HeteroLeaderConfig", "HeteroFollowerConfig"]
 
 
-def team_geometry(scenario: "Scenario") -> "TeamGeometry | None":
-    """The team's geometry for grading from the truth,
-    :func:`.geometry.heterogeneous_geometry`, imported here: a robot that only builds the law
-    never loads it."""
-    from .geometry import heterogeneous_geometry  # noqa: PLC0415
-
-    return heterogeneous_geometry(scenario)
+team_geometry = deferred("agent.controllers.heterogeneous.geometry:heterogeneous_geometry")
+"""The team's geometry for grading from the truth (:func:`.geometry.heterogeneous_geometry`), imported when
+the metrics ask: a robot that only builds the law never loads it."""
 
 
 @controller(config=HeteroLeaderConfig, needs_path=True, models=("omni",), geometry=team_geometry,

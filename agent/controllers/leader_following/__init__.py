@@ -10,27 +10,17 @@
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
-from copath.control import RobotContext, controller
+from copath.control import RobotContext, controller, deferred
 
 from .config import FollowerConfig, LeaderConfig
 from .payloads import PAYLOADS
 
-if TYPE_CHECKING:
-    from copath.scenario import Scenario
-    from copath.team import TeamGeometry
-
 __all__ = ["build_leader", "build_follower", "LeaderConfig", "FollowerConfig"]
 
 
-def team_geometry(scenario: "Scenario") -> "TeamGeometry | None":
-    """The team's geometry for grading from the truth,
-    :func:`.geometry.leader_following_geometry`, imported here: a robot that only builds the law
-    never loads it."""
-    from .geometry import leader_following_geometry  # noqa: PLC0415
-
-    return leader_following_geometry(scenario)
+team_geometry = deferred("agent.controllers.leader_following.geometry:leader_following_geometry")
+"""The team's geometry for grading from the truth (:func:`.geometry.leader_following_geometry`), imported when
+the metrics ask: a robot that only builds the law never loads it."""
 
 
 @controller(config=LeaderConfig, needs_path=True, models=("omni",), geometry=team_geometry,

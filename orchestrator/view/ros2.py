@@ -76,19 +76,32 @@ class Ros2Mirror:
         self.published = 0
         for topic, typ, msg, _ in self.topics.reference_paths():
             self._publish(topic, typ, msg, latched=True)
+        # every robot's odometry publisher from the start, not at its first message: a
+        # subscriber discovers it while the fleet starts, and sees the run from its first
+        # tick (made at the first truth, the publishers of a fast lockstep run were matched
+        # a second or more into it, and what came before was lost)
+        for name in scenario.robot_names:
+            self._publisher(f"/{name}/odom", "nav_msgs/msg/Odometry")
         self._thread = threading.Thread(target=self._loop, name="ros2-view", daemon=True)
         self.spin.start()
         self._thread.start()
 
-    def _publish(self, topic: str, typ: str, msg: dict, latched: bool = False) -> None:
-        cls = self.cls.get(typ)
-        if cls is None:
-            return
+    def _publisher(self, topic: str, typ: str, latched: bool = False) -> Any:
+        """The publisher of ``topic`` (made at its first use), or None for a type not installed."""
         pub = self.pubs.get(topic)
         if pub is None:
+            cls = self.cls.get(typ)
+            if cls is None:
+                return None
             qos = self._io.qos_latched() if latched or topic.endswith("/plan") else self._io.qos_view()
             pub = self.pubs[topic] = self._node.create_publisher(cls, topic, qos)
-        pub.publish(fill(cls(), msg))
+        return pub
+
+    def _publish(self, topic: str, typ: str, msg: dict, latched: bool = False) -> None:
+        pub = self._publisher(topic, typ, latched)
+        if pub is None:
+            return
+        pub.publish(fill(self.cls[typ](), msg))
         self.published += 1
 
     def write(self, key: str, data: bytes) -> None:

@@ -176,11 +176,13 @@ rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
 node = rclpy.create_node("copath_test_listener")
 seen = {}
 last = {}
+stamps = {}
 def cb(topic):
     def f(msg):
         seen[topic] = seen.get(topic, 0) + 1
         if isinstance(msg, Odometry):
             last[topic] = [msg.pose.pose.position.x, msg.pose.pose.position.y, msg.header.frame_id, msg.child_frame_id]
+            stamps.setdefault(topic, []).append(msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec)
         else:
             last[topic] = len(msg.poses)
     return f
@@ -193,13 +195,19 @@ signal.signal(signal.SIGTERM, lambda *a: stop.set())
 print("ready", flush=True)
 while not stop.is_set():
     rclpy.spin_once(node, timeout_sec=0.1)
-print(json.dumps({"seen": seen, "last": last}), flush=True)
+print(json.dumps({"seen": seen, "last": last, "stamps": stamps}), flush=True)
 """
 
 
 def test_simulated_run_is_mirrored_into_ros2_live(procs, ros_env, tmp_path):
     """copath run --ros2: a ROS 2 subscriber sees every robot's odometry (frame map), the
-    DMPC's broadcast horizon as nav_msgs/Path and the reference path."""
+    DMPC's broadcast horizon as nav_msgs/Path and the reference path.
+
+    Every tick from the first one the subscriber gets to the last: DDS matches the
+    subscriber with the mirror's publishers while the fleet starts, which on a loaded
+    machine took past the run's first second (25-40 of its 80 ticks, old and new code
+    alike), so the count of a fast lockstep run is not the test; the gaps are, and the last
+    tick (the last odometry is the last truth)."""
     topics = ["/r1/odom", "/r2/odom", "/r3/odom", "/r1/plan", "/paths/main"]
     listener = procs.start(["-c", LISTENER, ",".join(topics)])
     assert listener.stdout.readline().strip() == b"ready"
@@ -213,7 +221,13 @@ def test_simulated_run_is_mirrored_into_ros2_live(procs, ros_env, tmp_path):
     got = json.loads(listener.communicate(timeout=30)[0].decode().strip().splitlines()[-1])
     ticks = round(4 / 0.05)  # E5.2: dt = 0.05 s
     for n in ("r1", "r2", "r3"):
-        assert ticks - 5 <= got["seen"][f"/{n}/odom"] <= ticks, got["seen"]
+        st = got["stamps"][f"/{n}/odom"]  # header stamps: the run's start + t, one per tick
+        k = sorted(round((s - st[0]) / 0.05) for s in st)
+        assert ticks // 4 <= len(k) <= ticks and len(set(k)) == len(k), got["seen"]  # each tick once
+        # once matched, hardly any lost: the view's QoS keeps the last 10 per topic, and a
+        # subscriber starved of CPU (two busy loops beside the fleet) lost 6 of 56
+        span = k[-1] - k[0] + 1
+        assert span - len(k) <= max(3, span // 8), (n, k)
         assert got["last"][f"/{n}/odom"][2:] == ["map", f"{n}/base_link"]
     assert got["seen"]["/r1/plan"] >= 1 and got["last"]["/r1/plan"] > 1
     assert got["seen"]["/paths/main"] == 1 and got["last"]["/paths/main"] >= 50

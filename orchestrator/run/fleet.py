@@ -133,6 +133,10 @@ def run_fleet(scenario: Scenario, opts: RunOptions) -> RunOutcome:
     # SIGTERM (a test's timeout, a process manager) ends the run like Ctrl-C: children stopped, log finished
     prev_term = (signal.signal(signal.SIGTERM, _raise_terminated)
                  if threading.current_thread() is threading.main_thread() else None)
+    # and SIGINT always stops it, even when this process was started with SIGINT ignored (a
+    # background job of a script: Python then leaves it ignored): robots must stop when told
+    prev_int = (signal.signal(signal.SIGINT, signal.default_int_handler)
+                if threading.current_thread() is threading.main_thread() else None)
     try:
         procs.start()
         ok, reason = procs.watch(wall0, wall_limit)
@@ -143,6 +147,8 @@ def run_fleet(scenario: Scenario, opts: RunOptions) -> RunOutcome:
     finally:
         if prev_term is not None:
             signal.signal(signal.SIGTERM, prev_term)
+        if prev_int is not None:
+            signal.signal(signal.SIGINT, prev_int)
         progress.done()
         if not ok:
             procs.stop_world()

@@ -82,8 +82,6 @@ class Recorder:
         self._lock = threading.Lock()
         self.count = 0
         self.count_by_key: dict[str, int] = {}
-        self.last_cmd_ns: dict[str, int] = {}
-        """Receive time [ns] of each robot's newest command."""
         self.first_cmd_ns: dict[str, int] = {}
         """Receive time [ns] of each robot's first command since :meth:`expect_commands`
         (0 while none came): when a restarted robot commanded again."""
@@ -132,9 +130,8 @@ class Recorder:
                 self._channels[key] = ch
             self.count += 1
             self.count_by_key[key] = self.count_by_key.get(key, 0) + 1
-            if rel.endswith("/cmd"):  # robot/<name>/cmd: when each robot last commanded (a restart's rejoin)
+            if self.first_cmd_ns and rel.endswith("/cmd"):  # robot/<name>/cmd: a restart's rejoin
                 robot = rel.split("/")[1]
-                self.last_cmd_ns[robot] = now
                 if self.first_cmd_ns.get(robot) == 0:
                     self.first_cmd_ns[robot] = now
             ch.log(data, now)  # sequence: the channel's count, from 1

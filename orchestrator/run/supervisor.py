@@ -236,9 +236,9 @@ class Supervisor:
         # paying the imports again, which took 1.4-1.7 s of a restart under load (docs/reference/faults.md)
         child = self._zygote.spawn(name, argv, log) if self._zygote is not None else None
         child = child or spawn(name, [sys.executable, "-m", "agent", *argv], log, self.out / "logs")
-        if restarts:
-            self.log.expect_commands(name)
+        if restarts:  # the bound's start first: a command noted after it can only be later
             self.rejoining[name] = time.time_ns()
+            self.log.expect_commands(name)
         return child
 
     def start(self) -> None:
@@ -271,8 +271,8 @@ class Supervisor:
         for name, t_ns in list(self.rejoining.items()):
             # the first command's receive time, not the time of this look: a restart that
             # commands after the bound is late however soon the supervisor looks
-            first = self.log.first_cmd_ns.get(name, 0)
-            came = first > t_ns
+            first = self.log.first_cmd_ns.get(name, 0)  # noted from t_ns on (_agent), 0 until one came
+            came = first > 0
             waited = ((first if came else time.time_ns()) - t_ns) / 1e9
             if came and waited <= self.rejoin_timeout_s:
                 del self.rejoining[name]

@@ -85,6 +85,9 @@ class Recorder:
         self.first_cmd_ns: dict[str, int] = {}
         """Receive time [ns] of each robot's first command since :meth:`expect_commands`
         (0 while none came): when a restarted robot commanded again."""
+        self._old_incarnations: dict[str, frozenset[int]] = {}
+        """Per robot expected back: the incarnations heard before :meth:`expect_commands`. A
+        command still in flight from the killed process is not the new one's first."""
         self.accounts: dict[tuple[str, int], dict] = {}
         """Per (sender, incarnation): records received, first and last sequence number, the
         numbers missing (gaps), and the closing account's ``published`` when one came."""
@@ -99,6 +102,7 @@ class Recorder:
         restart: the supervisor measures its rejoin from it, not from whenever it looks)."""
         with self._lock:
             self.first_cmd_ns[robot] = 0
+            self._old_incarnations[robot] = frozenset(inc for (s, inc) in self.accounts if s == robot)
 
     def add_tap(self, tap: RecordTap) -> None:
         """Feed ``tap`` every record written from now on (before the first record: all of them)."""
@@ -132,7 +136,7 @@ class Recorder:
             self.count_by_key[key] = self.count_by_key.get(key, 0) + 1
             if self.first_cmd_ns and rel.endswith("/cmd"):  # robot/<name>/cmd: a restart's rejoin
                 robot = rel.split("/")[1]
-                if self.first_cmd_ns.get(robot) == 0:
+                if self.first_cmd_ns.get(robot) == 0 and not self._from_old_process(robot, attachment):
                     self.first_cmd_ns[robot] = now
             ch.log(data, now)  # sequence: the channel's count, from 1
         # light decoding for progress and the closing account (and for the taps that read the record)
@@ -152,6 +156,12 @@ class Recorder:
                 self.end = rec
             for tap in taps:
                 tap.feed(key, rec, now)
+
+    def _from_old_process(self, robot: str, attachment: bytes | None) -> bool:
+        """Whether a command of ``robot`` expected back came from an incarnation heard before
+        the restart (a record of the killed process still in flight), by its attachment."""
+        got = read_seq_attachment(attachment) if attachment is not None else None
+        return got is not None and got[0] in self._old_incarnations.get(robot, ())
 
     def _count(self, attachment: bytes, rel: str) -> dict | None:
         """One record into its sender's account (under the lock): what arrived, and the

@@ -62,3 +62,18 @@ def test_a_restart_is_timed_to_its_first_command_not_to_when_someone_looks(tmp_p
         rec.write(keys.cmd("r2"), cmd, log_time_ns=t)
     assert rec.first_cmd_ns["r2"] == 3_000 and "r1" not in rec.first_cmd_ns
     rec.finish()
+
+
+def test_a_command_of_the_killed_process_still_in_flight_is_not_the_restart(tmp_path):
+    # the killed incarnation's last commands can reach the recorder after the restart began:
+    # they are not the new process commanding again (its attachment says which process sent it)
+    keys = Keys("inflight")
+    rec = Recorder(tmp_path / "run.mcap", keys, {"copath": {"run_id": "inflight"}})
+    cmd = Command(0, 0.0, [0.0, 0.0]).pack()
+    rec.write(keys.cmd("r2"), cmd, log_time_ns=1_000, attachment=seq_attachment(7, 1, "r2"))
+    rec.expect_commands("r2")
+    rec.write(keys.cmd("r2"), cmd, log_time_ns=2_000, attachment=seq_attachment(7, 2, "r2"))  # old, late
+    assert rec.first_cmd_ns["r2"] == 0
+    rec.write(keys.cmd("r2"), cmd, log_time_ns=3_000, attachment=seq_attachment(8, 1, "r2"))  # the new one
+    assert rec.first_cmd_ns["r2"] == 3_000
+    rec.finish()

@@ -20,6 +20,19 @@ def test_chaos_arguments_parse_into_the_soak_settings():
     assert d.kinds == KINDS and d.minutes == 10.0 and d.faults == 40 and d.scenario == "e5.4-"
 
 
+def test_chaos_takes_scenario_overrides_and_refuses_a_bad_one_naming_it(capsys):
+    from orchestrator.studies.bench.chaos import prepare
+
+    a = parser("chaos").parse_args(["--set", "run.cut_off=drive", "--set", "network.delay_ms=50"])
+    assert a.set == ["run.cut_off=drive", "network.delay_ms=50"]
+    scen, faults = prepare("e5.5-", "lockstep", "restart", 1.0, 3, 1, overrides=a.set)
+    assert scen.run.cut_off == "drive" and scen.network.delay_ms == 50 and len(faults) == 3
+    assert prepare("e5.5-", "lockstep", "restart", 1.0, 3, 1)[0].run.cut_off == "hold"  # the bundled rule
+    assert copath(["bench", "chaos", "--scenario", "e5.5-", "--set", "run.cut_off=sideways", "--minutes", "0.1"]) == 2
+    err = capsys.readouterr().err
+    assert "run.cut_off" in err and "'sideways'" in err and "drive" in err, err
+
+
 @pytest.mark.parametrize("argv, words", [
     (["--kinds", "kill,bogus"], ("--kinds", "'bogus'", "allowed", "partition")),
     (["--minutes", "0"], ("--minutes", "'0'", "> 0")),

@@ -366,8 +366,12 @@ class Soak:
 
 
 def prepare(scenario: Scenario | str, clock: str, policy: str, minutes: float, n_faults: int, seed: int,
-            kinds=KINDS, burst: bool = False) -> tuple[Scenario, list[Fault]]:
+            kinds=KINDS, burst: bool = False, overrides: list[str] | None = None) -> tuple[Scenario, list[Fault]]:
     scen = load_scenario(_config(scenario)) if isinstance(scenario, str) else scenario
+    if overrides:  # ``--set key=value``: the scenario's own keys, validated as ``copath run --set``
+        from orchestrator import api  # noqa: PLC0415
+
+        scen = api.load(scen, overrides)
     duration = 60.0 * minutes
     faults = schedule(list(scen.robot_names), duration, n_faults, seed, kinds)
     return with_faults(scen, faults, burst, clock=clock, on_robot_failure=policy, duration_s=duration), faults
@@ -518,6 +522,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=int, default=1)
     p.add_argument("--kinds", type=_kinds, default=KINDS, help=f"comma-separated subset of {','.join(KINDS)}")
     p.add_argument("--burst", action="store_true", help="Gilbert-Elliott loss bursts on every link, all run")
+    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                   help="override a scenario key, as `copath run --set` (repeatable), e.g. run.cut_off=drive")
     p.add_argument("--inprocess", action="store_true", help="one process, lockstep, simulated kills")
     p.add_argument("--out", default=None, help="run directory [a new temporary one]")
     p.add_argument("--json", action="store_true")
@@ -533,7 +539,7 @@ def run(a: argparse.Namespace) -> int:
         return 0
     kinds = a.kinds
     clock = "lockstep" if a.inprocess else a.clock
-    scen, faults = prepare(a.scenario, clock, a.policy, a.minutes, a.faults, a.seed, kinds, a.burst)
+    scen, faults = prepare(a.scenario, clock, a.policy, a.minutes, a.faults, a.seed, kinds, a.burst, a.set)
     t0 = time.monotonic()
     if a.inprocess:
         res = soak_inprocess(scen, faults)
@@ -550,6 +556,7 @@ def run(a: argparse.Namespace) -> int:
     else:
         print_table(f"chaos soak: {scen.id}, {clock}, {a.policy}, {a.minutes:g} min, {len(faults)} faults, "
                     f"seed {a.seed}{', bursts' if a.burst else ''}{', in one process' if a.inprocess else ''}"
+                    f"{''.join(', ' + s for s in a.set)}"
                     f" (wall {res['wall_s']} s, load {res['load'][0]:.1f})", res)
     return 0
 

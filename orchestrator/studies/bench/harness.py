@@ -24,6 +24,7 @@ import json
 import os
 import pathlib
 import shutil
+import sys
 import tempfile
 import time
 from typing import Any, Callable, Iterator, Sequence
@@ -97,4 +98,10 @@ def parser(what: str) -> argparse.ArgumentParser:
 def main(what: str, argv: Sequence[str]) -> int:
     """Run ``copath bench WHAT`` with its own arguments."""
     args = parser(what).parse_args(list(argv))
-    return int(importlib.import_module(SUBCOMMANDS[what]).run(args) or 0)
+    from copath.scenario import ConfigError  # noqa: PLC0415
+
+    try:
+        return int(importlib.import_module(SUBCOMMANDS[what]).run(args) or 0)
+    except ConfigError as exc:  # a bad --set or scenario: the key, the value, what is allowed
+        print(f"copath bench {what}: {exc}", file=sys.stderr)
+        return 2

@@ -114,7 +114,7 @@ class SafetyStage:
                 self.guard.hear(env.sender, env.pos, env.stamp, env.vel)
         res = self.guard.apply(pose, command, now, ranges, angles, liveness.lost, liveness.quiet_for_filter(now))
         if not held:
-            command = [float(c) for c in res.command]
+            command = res.command.tolist()
         telemetry.update(safety_active=res.active, safety_change=res.change, safety_ms=(time.perf_counter() - t0) * 1e3)
         return command
 

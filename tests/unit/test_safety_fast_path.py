@@ -1,6 +1,8 @@
 """The safety filter's pass-through test on floats (``SafetyFilter._clear``, docs/reference/performance.md
 against IR-SIM (P15)) decides as the full test on the QP's rows: it passes only where the rows hold, and then
-returns the same smallest barrier; the filter's result is the one of the full path."""
+returns the same smallest barrier; the filter's result is the one of the full path. The guard's tubes
+and neighbour discs on floats (docs/journal/performance.md, safety filter second pass (P19)) are the
+numbers of the array and scalar functions, and decide as they do."""
 
 from __future__ import annotations
 

@@ -517,6 +517,7 @@ def main(argv: list[str] | None = None) -> int:
 
     with ZenohLink.open(conf) as link:
         link.sender = args.robot  # in every record's attachment (the recorder's accounts)
+        link.local_delivery = False  # its own broadcast is not decoded by its own peer/*/all subscriber
         if conf.authenticated:  # behind a secure router: step outside the grants and fail at once
             link.guard(AccessPolicy.for_scenario(keys, scenario), args.robot)
         try:

@@ -16,7 +16,7 @@ chunk, ``**`` is any number of chunks (docs/reference/performance.md, "One locks
 Receiver validation is the same on both: a Zenoh subscriber decodes with
 :func:`copath.wire.messages.unpack` and checks :func:`copath.wire.trust.check_origin`; a
 :class:`MemoryBus` made with ``validate`` runs the same schema checks on the record object
-(:func:`validate_record`, the record's ``from_dict`` over its ``to_dict``, without packing)
+(:func:`validate_record`: the record's ``to_dict`` packed and decoded as a subscriber decodes it)
 and the same origin check, once per published record. The in-process loop validates the
 peer envelopes: the records whose content (kind, payload) a user's controller decides,
 unchecked by the sender; the others are built by copath's own simulator and runtime in the
@@ -32,7 +32,9 @@ from __future__ import annotations
 import logging
 from typing import TYPE_CHECKING, Any, Callable, Protocol, runtime_checkable
 
-from .messages import WireError
+import msgpack
+
+from .messages import WireError, unpack
 from .trust import RejectLog, check_origin
 
 if TYPE_CHECKING:
@@ -55,7 +57,13 @@ def validate_record(key: str, rec: Any) -> Any:
     to_dict = getattr(rec, "to_dict", None)
     if to_dict is None:
         raise WireError(f"a {type(rec).__name__} is not a copath record")
-    type(rec).from_dict(to_dict())
+    d = to_dict()
+    try:
+        data = msgpack.packb(d, use_bin_type=True)
+    except Exception:  # a value msgpack cannot pack (a set, an object): the Python checks decide
+        type(rec).from_dict(d)
+    else:
+        unpack(data)  # msgspec's checks in C; what they refuse, the Python checks refuse with a reason
     check_origin(key, rec)
     return rec
 

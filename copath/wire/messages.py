@@ -7,6 +7,12 @@ another version, an unknown tag, a missing field or a field of the wrong type ra
 
 Arrays cross the boundary as lists of Python floats (msgpack refuses numpy scalars
 other than float64; docs/journal/measurements.md, msgpack at the wire boundary (W7)).
+
+Receivers decode with msgspec: each record class has a typed twin (a ``msgspec.Struct``
+built from its ``FIELDS``) that decodes and checks field types and finite numbers in C.
+Whatever that fast path refuses is decoded again by the plain msgpack path with the Python
+checks, which names the reason; so the records accepted and the errors raised are those of
+the Python checks (docs/journal/performance.md, the wire, msgspec (P18)).
 """
 
 from __future__ import annotations
@@ -14,10 +20,12 @@ from __future__ import annotations
 import dataclasses
 import math
 import re
+import sys
 from dataclasses import dataclass, field
-from typing import Any, ClassVar, Mapping
+from typing import Annotated, Any, ClassVar, Mapping, NamedTuple, NotRequired, Optional, TypedDict, Union
 
 import msgpack
+import msgspec
 
 from .payloads import PAYLOADS
 
@@ -36,6 +44,7 @@ __all__ = [
     "Stats",
     "RECORD_TYPES",
     "unpack",
+    "unpack_checked",
     "validate_payload",
     "to_plain",
 ]
@@ -164,8 +173,31 @@ def validate_payload(kind: str, payload: Any) -> None:
             _check_plain(payload[key], f"{kind}.{key}")
 
 
-_FIELD_NAMES: dict[type, tuple[str, ...]] = {}
-"""Field names of each record class, in declaration order (read once per class)."""
+_FREE_FORM = frozenset({"dict", "dict?", "any", "counts", "counts?"})
+"""Field types whose maps ``to_plain`` rewrites (keys to strings) when packing; the other
+fields go to the encoder as they are (numpy arrays and scalars through :func:`_enc_hook`)."""
+
+_PLANS: dict[type, tuple[tuple[str, bool], ...]] = {}
+"""Each record class's fields in declaration order, with whether the field is free-form."""
+
+
+def _plan(cls: type) -> tuple[tuple[str, bool], ...]:
+    plan = _PLANS.get(cls)
+    if plan is None:  # dataclasses.fields() costs more than the packing of a small record
+        plan = _PLANS[cls] = tuple((f.name, cls.FIELDS.get(f.name) in _FREE_FORM) for f in dataclasses.fields(cls))
+    return plan
+
+
+def _enc_hook(x: Any) -> Any:
+    """numpy arrays and scalars as ``to_plain`` gives them (lists, Python numbers)."""
+    if hasattr(x, "tolist"):
+        return x.tolist()
+    raise TypeError(f"can not serialize {type(x).__name__!r} object")
+
+
+_ENC = msgspec.msgpack.Encoder(enc_hook=_enc_hook)
+"""msgpack, as ``msgpack.packb(..., use_bin_type=True)`` writes the same values (the same bytes:
+tests/unit/test_wire_msgspec.py)."""
 
 
 class _Record:
@@ -175,16 +207,22 @@ class _Record:
     FIELDS: ClassVar[dict[str, str]]
 
     def to_dict(self) -> dict[str, Any]:
-        names = _FIELD_NAMES.get(type(self))
-        if names is None:  # dataclasses.fields() costs more than the packing of a small record
-            names = _FIELD_NAMES[type(self)] = tuple(f.name for f in dataclasses.fields(self))
-        d = {n: to_plain(getattr(self, n)) for n in names}
+        d = {n: to_plain(getattr(self, n)) for n, _ in _plan(type(self))}
         d["v"] = WIRE_VERSION
         d["type"] = self.TYPE
+        return self._ordered(d)
+
+    def _ordered(self, d: dict[str, Any]) -> dict[str, Any]:
+        """``d`` with maps whose order must not depend on insertion order sorted."""
         return d
 
     def pack(self) -> bytes:
-        return msgpack.packb(self.to_dict(), use_bin_type=True)
+        """The msgpack bytes of :meth:`to_dict`, encoded by msgspec: the free-form maps go
+        through ``to_plain``, the typed fields straight to the encoder."""
+        d = {n: to_plain(getattr(self, n)) if free else getattr(self, n) for n, free in _plan(type(self))}
+        d["v"] = WIRE_VERSION
+        d["type"] = self.TYPE
+        return _ENC.encode(self._ordered(d))
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]):
@@ -219,8 +257,7 @@ class Obs(_Record):
 
     _MEAS_WIDTH: ClassVar[dict[str, tuple[int, ...]]] = {"odom": (4, 5), "fixes": (3,), "headings": (2,)}
 
-    def to_dict(self) -> dict[str, Any]:
-        d = super().to_dict()
+    def _ordered(self, d: dict[str, Any]) -> dict[str, Any]:
         if d["expect"] is not None:  # sender order, not arrival order: equal runs give equal bytes
             d["expect"] = dict(sorted(d["expect"].items()))
         return d
@@ -229,11 +266,15 @@ class Obs(_Record):
     def from_dict(cls, d):
         rec = super().from_dict(d)
         if rec.meas is not None:
-            for key, widths in cls._MEAS_WIDTH.items():
-                rows = rec.meas.get(key)
-                if not _CHECKS["matrix"](rows) or any(len(r) not in widths for r in rows):
-                    raise WireError(f"obs.meas.{key} = {rows!r} must be rows of {widths} numbers")
+            cls._check_meas(rec.meas)
         return rec
+
+    @classmethod
+    def _check_meas(cls, meas: dict) -> None:
+        for key, widths in cls._MEAS_WIDTH.items():
+            rows = meas.get(key)
+            if not _CHECKS["matrix"](rows) or any(len(r) not in widths for r in rows):
+                raise WireError(f"obs.meas.{key} = {rows!r} must be rows of {widths} numbers")
 
 
 @dataclass(frozen=True)
@@ -271,8 +312,7 @@ class Command(_Record):
     sent: dict[str, int] = field(default_factory=dict)
     """Peer messages sent so far: ``"*"`` broadcasts, and per receiver name direct ones."""
 
-    def to_dict(self) -> dict[str, Any]:
-        d = super().to_dict()
+    def _ordered(self, d: dict[str, Any]) -> dict[str, Any]:
         d["sent"] = dict(sorted(d["sent"].items()))
         return d
 
@@ -418,8 +458,170 @@ RECORD_TYPES: dict[str, type[_Record]] = {
 }
 
 
+_MAX = sys.float_info.max
+_FINITE = Union[int, Annotated[float, msgspec.Meta(ge=-_MAX, le=_MAX)]]
+"""``float`` of ``_CHECKS``: an int, or a float that is not NaN or infinite (NaN fails both bounds)."""
+_DISTANCE = Union[int, Annotated[float, msgspec.Meta(ge=-_MAX)]]
+"""A finite number or +inf."""
+
+_PLAIN: Any = Union[None, bool, int, float, str]
+for _ in range(_MAX_DEPTH + 2):
+    _PLAIN = Union[None, bool, int, float, str, list[_PLAIN], dict[str, _PLAIN]]
+"""Plain values with string map keys, nested at most ten levels: what the free-form fields
+take on the fast path (deeper values, other keys, bytes or extension types: the Python path)."""
+
+_FAST_TYPES: dict[str, Any] = {
+    "float": _FINITE,
+    "int": int,
+    "bool": bool,
+    "str": str,
+    "floats": list[_FINITE],
+    "ints": list[int],
+    "points": list[Annotated[list[_FINITE], msgspec.Meta(min_length=2, max_length=2)]],
+    "any": _PLAIN,
+    "dict": dict[str, _PLAIN],
+    "dict?": Optional[dict[str, _PLAIN]],
+    "floats?": Optional[list[_FINITE]],
+    "float?": Optional[_FINITE],
+    "strs": list[str],
+    "bools": list[bool],
+    "matrix": list[list[_FINITE]],
+    "distances?": Optional[list[_DISTANCE]],
+    "counts": dict[str, int],
+    "counts?": Optional[dict[str, int]],
+}
+"""msgspec's type for each field type of ``_CHECKS``: it accepts a subset of what the check
+accepts (map keys are strings, as msgpack's ``strict_map_key`` wants them at every level)
+and decodes to the same values (ints stay ints)."""
+
+_FAST_LENGTH = {(PeerEnvelope, "pos"): 2, (PeerEnvelope, "cov"): 3, (PeerEnvelope, "vel"): 3}
+"""Fixed list lengths that ``from_dict`` checks after the field types."""
+
+
+class _Head(msgspec.Struct, gc=False):
+    """Version, tag and (peer envelopes) kind of any record; the other fields are skipped in C."""
+
+    v: Any = None
+    type: Any = None
+    kind: Any = None
+
+
+_HEAD = msgspec.msgpack.Decoder(_Head)
+
+
+def _fast_decoder(cls: type[_Record]) -> msgspec.msgpack.Decoder:
+    """A decoder of ``cls``'s fields into a dict (a ``TypedDict`` twin of ``FIELDS``)."""
+    names = [f.name for f in dataclasses.fields(cls)]
+    if names != list(cls.FIELDS) or hasattr(cls, "__post_init__") or hasattr(cls, "__slots__"):
+        raise TypeError(f"{cls.__name__}: FIELDS must list its fields in order, without __post_init__ or slots")
+    spec = {}
+    for name, typ in cls.FIELDS.items():
+        t = _FAST_TYPES[typ]
+        n = _FAST_LENGTH.get((cls, name))
+        if n is not None:
+            t = Annotated[list[_FINITE], msgspec.Meta(min_length=n, max_length=n)]
+            if typ.endswith("?"):
+                t = Optional[t]
+        spec[name] = NotRequired[t] if (cls, name) == (PeerEnvelope, "vel") else t  # vel: older logs
+    return msgspec.msgpack.Decoder(TypedDict(f"_{cls.__name__}Wire", spec))
+
+
+_FAST: dict[str, tuple[type[_Record], msgspec.msgpack.Decoder]] = {
+    tag: (cls, _fast_decoder(cls)) for tag, cls in RECORD_TYPES.items()}
+
+_new = object.__new__
+_set = object.__setattr__
+
+
+class _PayloadCheck(NamedTuple):
+    schema: dict[str, str]
+    """The schema it was built from (``PAYLOADS[kind]``)."""
+    decoder: msgspec.msgpack.Decoder
+    """Decodes a whole peer envelope, checking only its payload's typed fields."""
+    plain: tuple[str, ...]
+    """Fields of type ``any``: checked in Python (:func:`_check_plain`)."""
+
+
+_PAYLOAD_CHECKS: dict[str, _PayloadCheck | None] = {}
+
+
+def _payload_check(kind: str) -> _PayloadCheck | None:
+    """The msgspec check of a registered kind's payload (None: the kind has no schema, or
+    its name is not a kind; Python checks it)."""
+    schema = PAYLOADS.get(kind)
+    got = _PAYLOAD_CHECKS.get(kind)
+    if got is not None and (got.schema is schema or got.schema == schema):
+        return got
+    if schema is None or not _KIND_RE.fullmatch(kind):
+        return None
+    fields = []
+    for name, typ in schema.items():
+        optional = name.endswith("?")
+        key = name[:-1] if optional else name
+        t = _FAST_TYPES[typ]
+        fields.append((key, t, msgspec.UNSET) if optional else (key, t))
+    fields.sort(key=lambda f: len(f) == 3)  # required first
+    payload = msgspec.defstruct(f"_{kind}Payload", fields, gc=False)
+    envelope = msgspec.defstruct(f"_{kind}Envelope", [("payload", payload)], gc=False)
+    got = _PAYLOAD_CHECKS[kind] = _PayloadCheck(schema, msgspec.msgpack.Decoder(envelope),
+                                                tuple(n.rstrip("?") for n, t in schema.items() if t == "any"))
+    return got
+
+
+def _map_len(data: bytes | bytearray | memoryview) -> int:
+    """Number of entries of the msgpack map ``data`` starts with (-1: not a map header)."""
+    b = data[0]
+    if 0x80 <= b <= 0x8F:
+        return b & 0x0F
+    if b == 0xDE:
+        return int.from_bytes(data[1:3], "big")
+    if b == 0xDF:
+        return int.from_bytes(data[1:5], "big")
+    return -1
+
+
 def unpack(data: bytes | bytearray | memoryview):
-    """Decode and validate any record; raises WireError."""
+    """Decode and validate any record; raises WireError.
+
+    msgspec decodes the record's fields into a dict and checks their types in C (a peer
+    envelope's payload too, for a kind with a schema); a record it refuses goes through
+    :func:`unpack_checked`, which accepts or refuses it with the Python checks and names the
+    reason. The record is made from the checked dict without running ``__init__`` again
+    (the frozen dataclasses have no ``__post_init__``)."""
+    try:
+        head = _HEAD.decode(data)
+        if head.v == WIRE_VERSION and type(head.type) is str:
+            fast = _FAST.get(head.type)
+            if fast is not None:
+                cls, dec = fast
+                d = dec.decode(data)
+                if _map_len(data) != len(d) + 2:  # other keys (skipped unread by the twin): the Python path
+                    return unpack_checked(data)
+                if cls is PeerEnvelope:
+                    if "vel" not in d:
+                        d["vel"] = None
+                    check = _payload_check(head.kind) if type(head.kind) is str else None
+                    if check is None:
+                        validate_payload(d["kind"], d["payload"])
+                    else:
+                        check.decoder.decode(data)
+                        payload = d["payload"]
+                        for name in check.plain:
+                            if name in payload:
+                                _check_plain(payload[name], f"{head.kind}.{name}")
+                elif cls is Obs and d["meas"] is not None:
+                    Obs._check_meas(d["meas"])
+                rec = _new(cls)
+                _set(rec, "__dict__", d)
+                return rec
+    except (msgspec.DecodeError, WireError):
+        pass
+    return unpack_checked(data)
+
+
+def unpack_checked(data: bytes | bytearray | memoryview):
+    """Decode with msgpack and validate with the Python checks; raises WireError naming
+    the field and the reason (the reference :func:`unpack` falls back on)."""
     try:
         d = msgpack.unpackb(bytes(data), raw=False)
     except Exception as exc:  # msgpack raises several exception types
@@ -428,7 +630,8 @@ def unpack(data: bytes | bytearray | memoryview):
         raise WireError("record must be a msgpack map")
     if d.get("v") != WIRE_VERSION:
         raise WireError(f"wire version {d.get('v')!r} is not supported (expected {WIRE_VERSION})")
-    cls = RECORD_TYPES.get(d.get("type"))
+    tag = d.get("type")
+    cls = RECORD_TYPES.get(tag) if isinstance(tag, str) else None  # a list or map tag is no record type either
     if cls is None:
         raise WireError(f"unknown record type {d.get('type')!r}")
     return cls.from_dict(d)

@@ -193,6 +193,11 @@ class ZenohLink:
         self._lock = threading.Lock()
         self._closed = False
         self._droppable: tuple[str, ...] = ()
+        self.local_delivery = True
+        """False: what this link publishes does not reach this session's own subscribers
+        (``Locality.REMOTE``; the router and the recorder still get it). An agent listens on
+        ``peer/*/all`` and would decode its own broadcast, inside the put, only to drop it
+        (docs/journal/performance.md, the wire, msgspec (P18)). Set before the first publish."""
         self._policy: AccessPolicy | None = None
         self._user: str | None = None
 
@@ -224,6 +229,9 @@ class ZenohLink:
             return zenoh.CongestionControl.DROP
         return zenoh.CongestionControl.BLOCK
 
+    def _destination(self) -> "zenoh.Locality | None":
+        return None if self.local_delivery else zenoh.Locality.REMOTE
+
     @property
     def rejects(self) -> int:
         """Messages rejected so far (schema, origin, or a callback that raised)."""
@@ -251,12 +259,14 @@ class ZenohLink:
                     ke = self._keyexprs[key] = zenoh.KeyExpr(key)  # parsed once
                 self.published += 1
                 self.session.put(ke, data, congestion_control=self._congestion(key),
-                                 attachment=seq_attachment(self.incarnation, self.published, self.sender))
+                                 attachment=seq_attachment(self.incarnation, self.published, self.sender),
+                                 allowed_destination=self._destination())
             return
         with self._lock:
             pub = self._pubs.get(key)
             if pub is None:
-                pub = self.session.declare_publisher(key, congestion_control=self._congestion(key))
+                pub = self.session.declare_publisher(key, congestion_control=self._congestion(key),
+                                                     allowed_destination=self._destination())
                 self._pubs[key] = pub
             self.published += 1
             pub.put(data, attachment=seq_attachment(self.incarnation, self.published, self.sender))

@@ -54,28 +54,43 @@ def check_origin(key: str, rec) -> None:
     ``stats/<proc>``              Stats with ``proc == proc``
     ============================  ===============================================
     """
-    rel = relative_key(key)
-    want = None
-    if len(rel) == 3 and rel[0] == "robot":
-        want = _ROBOT_RECORDS.get(rel[2])
-    elif len(rel) in (3, 4) and rel[0] == "peer" and (rel[2] == "all" or (rel[2] == "to" and len(rel) == 4)):
-        want = PeerEnvelope
-        if isinstance(rec, PeerEnvelope) and rec.sender != rel[1]:
-            raise WireError(f"peer envelope from sender {rec.sender!r} on {rel[1]!r}'s key")
-    elif len(rel) == 2 and rel[0] == "sim" and rel[1] in _SIM_RECORDS:
-        want = _SIM_RECORDS[rel[1]]
-    elif len(rel) == 2 and rel[1] == "event":
-        want = Event
-        if isinstance(rec, Event) and rec.source != rel[0]:
-            raise WireError(f"event from source {rec.source!r} on {rel[0]!r}'s key")
-    elif len(rel) == 2 and rel[0] == "stats":
-        want = Stats
-        if isinstance(rec, Stats) and rec.proc != rel[1]:
-            raise WireError(f"closing account of {rec.proc!r} on {rel[1]!r}'s key")
+    rule = _RULES.get(key)
+    if rule is None:
+        rule = _rule(key)
+        if len(_RULES) < _MAX_RULES:  # keys repeat; a flood of made-up keys must not grow it
+            _RULES[key] = rule
+    rel, want, attr, name = rule
+    if want is PeerEnvelope and isinstance(rec, PeerEnvelope) and rec.sender != name:
+        raise WireError(f"peer envelope from sender {rec.sender!r} on {name!r}'s key")
+    if attr is not None and isinstance(rec, want) and getattr(rec, attr) != name:
+        raise WireError(_MISMATCH[attr].format(getattr(rec, attr), name))
     if want is None:
         raise WireError(f"key {'/'.join(rel) or key!r} carries no copath record")
     if not isinstance(rec, want):
         raise WireError(f"a {rec.TYPE!r} record on {'/'.join(rel)} (expected {want.TYPE!r})")
+
+
+_MISMATCH = {"source": "event from source {!r} on {!r}'s key", "proc": "closing account of {!r} on {!r}'s key"}
+_MAX_RULES = 4096
+_RULES: dict[str, tuple] = {}
+"""What :func:`check_origin` wants on each key it has seen: (chunks, record type, the field
+naming the publisher, that name); read from the key once."""
+
+
+def _rule(key: str) -> tuple:
+    rel = relative_key(key)
+    want, attr, name = None, None, None
+    if len(rel) == 3 and rel[0] == "robot":
+        want = _ROBOT_RECORDS.get(rel[2])
+    elif len(rel) in (3, 4) and rel[0] == "peer" and (rel[2] == "all" or (rel[2] == "to" and len(rel) == 4)):
+        want, name = PeerEnvelope, rel[1]
+    elif len(rel) == 2 and rel[0] == "sim" and rel[1] in _SIM_RECORDS:
+        want = _SIM_RECORDS[rel[1]]
+    elif len(rel) == 2 and rel[1] == "event":
+        want, attr, name = Event, "source", rel[0]
+    elif len(rel) == 2 and rel[0] == "stats":
+        want, attr, name = Stats, "proc", rel[1]
+    return rel, want, attr, name
 
 
 @dataclass(frozen=True)

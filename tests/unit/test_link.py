@@ -9,11 +9,15 @@ from copath.scenario import load_scenario
 from copath.wire.keys import Keys
 from copath.wire.link import Link, MemoryBus, MemoryLink, key_matches
 from agent.io_ros2 import CommandTap
+from agent.controllers.consensus.payloads import PAYLOADS as CONSENSUS_PAYLOADS
 from copath.wire.messages import Command, Obs, PeerEnvelope, Stats, WireError, unpack
+from copath.wire.payloads import register_payloads
 from copath.wire.trust import check_origin
 from copath.wire.session import ZenohLink
 from orchestrator.run.inprocess import run_scenario
 from tests.conftest import config
+
+register_payloads(CONSENSUS_PAYLOADS)  # coord_state's schema, whatever ran before (the file alone too)
 
 
 @pytest.mark.parametrize(("key", "expr", "hit"), [

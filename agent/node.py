@@ -518,7 +518,6 @@ def main(argv: list[str] | None = None) -> int:
     with ZenohLink.open(conf) as link:
         link.sender = args.robot  # in every record's attachment (the recorder's accounts)
         link.local_delivery = False  # its own broadcast is not decoded by its own peer/*/all subscriber
-        link.direct_callbacks = True  # the callbacks only queue records: run them on Zenoh's thread
         if conf.authenticated:  # behind a secure router: step outside the grants and fail at once
             link.guard(AccessPolicy.for_scenario(keys, scenario), args.robot)
         try:

@@ -198,12 +198,6 @@ class ZenohLink:
         (``Locality.REMOTE``; the router and the recorder still get it). An agent listens on
         ``peer/*/all`` and would decode its own broadcast, inside the put, only to drop it
         (docs/journal/performance.md, the wire, msgspec (P18)). Set before the first publish."""
-        self.direct_callbacks = False
-        """True: :meth:`subscribe`'s callbacks run on Zenoh's receiving thread instead of a
-        Python thread per subscriber fed through a channel (``handlers.Callback(...,
-        indirect=False)``): one thread hand-over less per record. The callbacks must be short
-        and must not block (an agent's queue their records). Set before subscribing
-        (docs/journal/performance.md, the wire, msgspec (P18))."""
         self._policy: AccessPolicy | None = None
         self._user: str | None = None
 
@@ -307,8 +301,6 @@ class ZenohLink:
                 self.reject_log.add(key, f"callback failed: {exc!r}")
                 logger.exception("subscriber callback failed on %s", key)
 
-        if self.direct_callbacks:
-            handler = zenoh.handlers.Callback(handler, indirect=False)
         self._decls.append(self.session.declare_subscriber(key_expr, handler))
 
     def subscribe_raw(self, key_expr: str, callback: Callable[..., None], attachment: bool = False) -> None:

@@ -86,9 +86,11 @@ class DetourConfig:
     """Sensed points are kept this long after they were last seen [s]."""
 
 
-MIN_SPREAD = 0.4
+MIN_SPREAD = 0.25
 """A shifted lane keeps 1 - kappa q at least this (chosen: the lane's own radius of curvature
-stays above 40 % of the path's, so the path coordinate of a point on it is unique nearby)."""
+stays above a quarter of the path's, so the path coordinate of a point on it is unique nearby;
+0.4 refused E5.1's follower a 0.14 m shift inside a bend round its held leader and sent it
+0.94 m the other way, docs/journal/detours.md, "On by default")."""
 
 
 @dataclass(frozen=True)
@@ -377,6 +379,9 @@ class DetourPlanner:
             # too close): give it up smoothly and leave the robot to the safety filter a while
             plan.abandoned, plan.target = True, 0.0
             self._quiet_until = t + 2.0 * self.config.stall_s
+        elif not plan.abandoned and plan.reason == "held" and not any(d.kind == "held" for d in near):
+            # the held robot is back (heard again): nothing is left to go round; fall back smoothly
+            plan.abandoned, plan.target = True, 0.0
         elif not plan.abandoned:
             self._extend(plan, s, near)
         plan = self.plan
@@ -412,8 +417,12 @@ class DetourPlanner:
         if not discs:
             return []
         ss, P = self._lane(s, q, u0, u1)
+        th = float(self.path.frame(float(ss[0]))[2])
+        tx, ty = self.direction * math.cos(th), self.direction * math.sin(th)
         out = []
         for d in discs:
+            if (d.x - P[0, 0]) * tx + (d.y - P[0, 1]) * ty <= 0.0:
+                continue  # centred behind: driving on leads out of it (a held robot just behind)
             dist = np.hypot(P[:, 0] - d.x, P[:, 1] - d.y)
             k = int(np.argmin(dist))
             if dist[k] < d.radius + self.width:

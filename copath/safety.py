@@ -108,11 +108,12 @@ class SafetyConfig:
 
     enabled: bool = False
     """Filter every robot's command (off unless the scenario turns it on)."""
-    detours: bool = False
+    detours: bool = True
     """Detour round a blocked lane (``copath/detour.py``, docs/reference/detours.md): a path follower
-    leaves its lane round an obstacle or a held robot and rejoins it. Off unless the scenario
-    turns it on (chosen: it changes the figures of runs with a lost robot, which the
-    scenarios and tests before it were measured without; the blocked-lane scenarios turn it on)."""
+    leaves its lane round an obstacle or a held robot and rejoins it. On by default (issue 20:
+    every path-following family gets round a blocked lane without opting in); it acts only where
+    something blocks a lane, so runs without obstacles or failures keep their figures.
+    ``false`` turns it off (the robots then stop in front of a block, as before it)."""
     gamma: float | None = None
     """Barrier gain gamma [1/s]: a gap h may close at most at rate gamma h, each robot of a pair
     taking half; gamma * dt <= 1 keeps the discrete-time step from overshooting. None: 0.8 / dt

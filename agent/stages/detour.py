@@ -35,26 +35,34 @@ class DetourStage:
         self._radii = {r.name: r.model.radius for r in scenario.robots}
         self._positions: dict[str, tuple[float, float, float]] = {}
         """Without the safety filter: the last position each peer sent, and its stamp."""
+        self._lease = float(scenario.run.lease_s)
+        self._held_at: float | None = None
+        """The last instant the runtime held this robot still (cut off) [s]."""
 
     def step(self, now: float, pose: np.ndarray, ranges, angles, inbox: list[PeerMessage], events: list[Event],
              held: bool, liveness: LivenessStage, safety: SafetyStage | None) -> tuple[np.ndarray, float]:
         """The pose the controller sees and the lane's shift; the stage's events are appended
         to ``events``. A robot the runtime holds still (cut off) plans nothing."""
         if self.planner is None or held:
+            self._held_at = now
             return pose, 0.0
         planner, peers = self.planner, []
+        # a robot just released from a cut-off hold judged the others silent from its own
+        # deafness: until it has listened for a lease, their held discs are not blocks
+        deaf = self._held_at is not None and now - self._held_at <= self._lease
         if safety is not None and (ranges is not None or liveness.lost or liveness.quiet_for_filter(now)
                                    or planner.plan is not None or planner.stalled(now)):
             for nb in safety.guard.neighbours(now):  # held discs, and live ones to tell teammates in the ring
                 spread = nb.spread if nb.spread is not None else nb.speed_max * nb.age
-                peers.append((nb.position[0], nb.position[1], nb.radius + (0.0 if nb.held else spread), nb.held))
+                peers.append((nb.position[0], nb.position[1], nb.radius + (0.0 if nb.held else spread),
+                              nb.held and not deaf))
         else:
             for m in inbox:
                 if m.position is not None:
                     self._positions[m.sender] = (m.position[0], m.position[1], m.stamp)
             for r, (x, y, stamp) in self._positions.items():
                 spread = min(0.5 * max(now - stamp, 0.0), 0.5)
-                peers.append((x, y, self._radii.get(r, 0.0) + spread, r in liveness.lost))
+                peers.append((x, y, self._radii.get(r, 0.0) + spread, r in liveness.lost and not deaf))
         out = planner.step(now, pose, ranges, angles, peers)
         events += [Event(float(now), self.robot, what, detail) for what, detail in out.events]
         return out.pose, out.offset

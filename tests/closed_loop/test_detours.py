@@ -58,11 +58,11 @@ def test_one_robot_goes_round_a_sensed_box_and_rejoins_its_path():
     assert t[-1] - ends[0].t > 2.0 and np.max(last) < 0.04 and last[-1] < 0.5 * last[0]
 
 
-def _check(scen, res, free, targets: bool = True, stalled_s: float = 0.0, over_free: bool = False):
+def _check(scen, res, free, targets: bool = True, stalled_s: float = 0.0, switching: bool = False):
     """The goals of issue 20 (docs/reference/detours.md); ``targets``: the scenario's own too;
-    ``stalled_s``: the most time any robot may be stalled (M4c); ``over_free``: coordination
-    is measured as its excess over the same run without the box (a team that loosens by
-    design, as a formation switching its slots, Sec. 6.6)."""
+    ``stalled_s``: the most time any robot may be stalled (M4c); ``switching``: a team that
+    loosens by design while it switches formations (Sec. 6.6: 0.34 m without the box, at times
+    the box shifts): its coordination is checked back under 0.05 m over the last 10 s instead."""
     m = res.metrics
     graded = grade(scen.targets, m) if targets else []
     assert all(g.passed for g in graded), [(g.target.key, g.value) for g in graded if not g.passed]
@@ -76,11 +76,10 @@ def _check(scen, res, free, targets: bool = True, stalled_s: float = 0.0, over_f
     assert all(r["stalled_s"] <= stalled_s for r in m["robots"].values()), {n: r["stalled_s"] for n, r in m["robots"].items()}
     # coordination among the robots back under 0.05 m within 20 s after the last has passed
     ser = truth_series(res.trace, scen)
-    if over_free:
-        base = truth_series(free.trace, scen)
-        ser = dataclasses.replace(ser, coordination_error=np.maximum(
-            ser.coordination_error - np.interp(ser.t, base.t, base.coordination_error), 0.0))
-    _recovers(ser, _passes(res.trace.events))
+    if switching:
+        assert np.nanmax(ser.coordination_error[ser.t >= ser.t[-1] - 10.0]) < 0.05
+    else:
+        _recovers(ser, _passes(res.trace.events))
 
 
 def _recovers(ser, passes, tol: float = 0.05, within: float = 20.0, hold: float = 5.0) -> None:
@@ -193,10 +192,10 @@ def test_every_path_following_family_goes_round_a_box_on_its_lane(family):
     # the scenario's own targets are those of the run without the box (a formation kept within
     # 2 cm, say): the goals here are issue 20's. Measured 2026-12-02: stalled at most 0.8 s
     # (E6.6's r3 slows behind r2 while r2 rejoins the line); E6.6 loosens by up to 0.34 m
-    # while it switches (line -> column from xi = 3 m, during r2's rejoin), so its coordination
-    # is graded against the run without the box
+    # while it switches (line -> column from xi = 3 m, during r2's rejoin; 0.001 m over the
+    # last 10 s measured)
     _check(scen, run_scenario(scen, duration_s=duration), run_scenario(free, duration_s=duration), targets=False,
-           stalled_s=1.0, over_free=family == "formation-switching")
+           stalled_s=1.0, switching=family == "formation-switching")
 
 
 @pytest.mark.slow

@@ -26,6 +26,7 @@ __all__ = [
     "scale_velocities",
     "make_model",
     "limit_change",
+    "world_velocity_list",
     "world_velocity",
 ]
 
@@ -115,10 +116,16 @@ def limit_change(model, previous, command, dt: float) -> np.ndarray:
 def world_velocity(model, theta: float, command) -> np.ndarray:
     """World-frame velocity ``(xdot, ydot, thetadot)`` of a robot at heading theta applying a
     body command, (3.1) / (3.3)."""
-    c = np.asarray(command, dtype=float)
+    return np.array(world_velocity_list(model, theta, command))
+
+
+def world_velocity_list(model, theta: float, command) -> list[float]:
+    """:func:`world_velocity` as a list of Python floats (the envelopes' ``vel``; no array
+    for three numbers)."""
+    c = np.asarray(command, dtype=float).tolist() if type(command) is not list else command
     u, v = (float(c[0]), float(c[1])) if model.kind == "omni" else (float(c[0]), 0.0)
     ct, st = math.cos(theta), math.sin(theta)
-    return np.array([ct * u - st * v, st * u + ct * v, float(c[-1])])
+    return [ct * u - st * v, st * u + ct * v, float(c[-1])]
 
 
 @dataclass(frozen=True)
@@ -245,7 +252,10 @@ class UnicycleModel:
 
     def saturate(self, cmd) -> tuple[np.ndarray, bool]:
         """Clip (v, omega) to the limits with the curvature-preserving scaling."""
-        v, w = (float(c) for c in np.asarray(cmd, dtype=float).reshape(2))
+        if type(cmd) in (tuple, list) and len(cmd) == 2:  # the hot path: no array for two numbers
+            v, w = float(cmd[0]), float(cmd[1])
+        else:
+            v, w = (float(c) for c in np.asarray(cmd, dtype=float).reshape(2))
         tol = 1e-6
         violated = abs(v) > self.v_max * (1 + tol) or abs(w) > self.omega_max * (1 + tol)
         return np.array(scale_velocities(v, w, self.v_max, self.omega_max)), violated

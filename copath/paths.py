@@ -134,6 +134,7 @@ class Path:
         self._stencil = np.array([0.0, h1, -h1, 2 * h1, -2 * h1, h2, -h2, 2 * h2, -2 * h2])
         """Offsets in phi of the nine curve points :meth:`frame` evaluates per arc length."""
         self._s_list, self._phi_list, self._dphi_list = s.tolist(), phi.tolist(), self._dphi_tab.tolist()
+        self._theta_list = self._theta_tab.tolist()
         """The s -> phi table as Python floats, for the scalar look-up."""
 
     # -- derivatives of the parametric curve (5-point stencils) -------------------
@@ -283,10 +284,10 @@ class Path:
         d1y = (-R[3][1] + 8 * R[1][1] - 8 * R[2][1] + R[4][1]) / (12 * h1)
         d2x = (-R[7][0] + 16 * R[5][0] - 30 * R[0][0] + 16 * R[6][0] - R[8][0]) / (12 * h2 * h2)
         d2y = (-R[7][1] + 16 * R[5][1] - 30 * R[0][1] + 16 * R[6][1] - R[8][1]) / (12 * h2 * h2)
-        sp = float(np.hypot(d1x, d1y))
-        k = (d1x * d2y - d1y * d2x) / float(np.power(sp, 3))
-        raw = float(np.arctan2(d1y, d1x))
-        ref = float(np.interp(s_in, S, self._theta_tab))
+        sp = float(np.hypot(d1x, d1y))  # libm's hypot: math.hypot rounds differently (P13)
+        k = (d1x * d2y - d1y * d2x) / sp**3  # libm's pow, as np.power
+        raw = math.atan2(d1y, d1x)
+        ref = self._interp_theta(s_in, i)
         th = raw + 2 * math.pi * round((ref - raw) / (2 * math.pi))
         x, y = R[0]
         if extra != 0.0:
@@ -295,6 +296,16 @@ class Path:
             k = 0.0
         th = th + 2 * math.pi * self.winding * laps
         return x, y, th, k
+
+    def _interp_theta(self, x: float, i: int) -> float:
+        """``np.interp(x, s_tab, theta_tab)`` of one arc length on Python floats, the same
+        operations as numpy's (``arr_interp``: the end values outside the table, a node's own
+        value at a node, else slope (y1 - y0) / (x1 - x0) times (x - x0) plus y0); ``i`` is
+        :meth:`_frame_scalar`'s interval, clipped to the table, so x lies in it or at an end."""
+        S, Y = self._s_list, self._theta_list
+        if not S[i] < x < S[i + 1]:  # at a node, beyond an end, or NaN: numpy's own
+            return float(np.interp(x, self._s_tab, self._theta_tab))
+        return (Y[i + 1] - Y[i]) / (S[i + 1] - S[i]) * (x - S[i]) + Y[i]
 
     def normal(self, s) -> np.ndarray:
         """Left unit normal n = (-sin theta, cos theta) at s."""

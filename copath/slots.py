@@ -79,7 +79,6 @@ def track_coordinate(path: Path, xy, window: float = 0.5, resolution: float = 0.
     h = float(grid[1] - grid[0])
     P = np.asarray(path.pos(grid))
     w = max(1, int(np.ceil(window / h)))
-    offs = np.arange(-w, w + 1)
     idx = np.empty(T, dtype=np.int64)
     if s0 is None:
         d0 = P - xy[0]
@@ -91,12 +90,17 @@ def track_coordinate(path: Path, xy, window: float = 0.5, resolution: float = 0.
         i = int(round(s0 / h)) if path.closed else int(np.clip(round((s0 - grid[0]) / h), 0, n - 1))
         first = 0
     idx[0] = i
+    # the table padded by the window at both ends (wrapped round a closed path, the end points
+    # repeated on an open one), so each search window is one slice: row r of the padded table
+    # is P[(r - w) mod n] or P[clip(r - w, 0, n - 1)], the candidates of i in their order
+    pad = (np.concatenate([P[n - w:], P, P[:w]]) if path.closed and w <= n
+           else P[np.mod(np.arange(-w, n + w), n)] if path.closed
+           else np.concatenate([np.repeat(P[:1], w, 0), P, np.repeat(P[-1:], w, 0)]))
     for k in range(first, T):
-        cand = i + offs
-        ci = np.mod(cand, n) if path.closed else np.clip(cand, 0, n - 1)
-        d = P[ci] - xy[k]
+        r = i % n if path.closed else i  # an open path's i is a table index already
+        d = pad[r:r + 2 * w + 1] - xy[k]
         j = int(np.argmin(np.einsum("ij,ij->i", d, d)))
-        i = int(cand[j]) if path.closed else int(ci[j])
+        i = i - w + j if path.closed else min(max(i - w + j, 0), n - 1)
         idx[k] = i
     s = idx * h if path.closed else grid[idx]
     for _ in range(4):  # Newton on (p - r(s)) . t(s) = 0, steps clipped to the table spacing

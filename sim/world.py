@@ -57,7 +57,13 @@ class World:
                 self.applied[self.names[i]] = g.app[j]
         self.t = 0.0
         self._step_dt = scenario.run.dt
+        self._saturated_dt: float | None = None
+        """The dt of the latest :meth:`saturate_all`, until a command or a step changes what it
+        computed (requested rows are written through :meth:`command` only)."""
         self._noise_rng = np.random.default_rng(np.random.SeedSequence([scenario.run.seed, 101]))
+        std = np.asarray(scenario.noise.pose_std, dtype=float)
+        self._pose_std = std if np.any(std > 0) else None
+        """Standard deviations of the observed pose's noise (None: no noise)."""
         self.sensors = scenario.sensors
         self.sensing: dict[str, RobotSensors] = {}  # robots with a non-ideal sensor profile
         for i, r in enumerate(scenario.robots):
@@ -78,6 +84,7 @@ class World:
         """Set the requested command of a robot (held until the next one)."""
         row = self.requested[name]
         row[:] = np.asarray(cmd, dtype=float).reshape(row.shape)
+        self._saturated_dt = None
 
     def advance(self, dt: float) -> None:
         """Integrate every robot over dt with its saturated (and, for models with an
@@ -88,6 +95,7 @@ class World:
         self._P[:] = integrate_body_velocities(self._P, self._B, dt)
         for g in self._groups:
             g.commit()
+        self._saturated_dt = None
         self._step_dt = dt
         self.t += dt
 
@@ -99,8 +107,11 @@ class World:
         (``copath.models.limit_change``); dt defaults to the last physics step's (run.dt
         before the first). Idempotent until :meth:`advance` commits the step."""
         dt = self._step_dt if dt is None else dt
+        if dt == self._saturated_dt:  # nothing changed since (a lockstep tick's truth, then its step)
+            return
         for g in self._groups:
             g.saturate(self._B, self._viol, dt)
+        self._saturated_dt = dt
 
     # -- observations -----------------------------------------------------------------
     def obstacle_polygons(self, t: float | None = None) -> list[np.ndarray]:
@@ -113,11 +124,10 @@ class World:
         meas = None
         if name in self.sensing:
             pose, meas = self.sensing[name].read(self.t)
+        elif self._pose_std is None:
+            pose = self.poses[name].tolist()
         else:
-            pose = self.poses[name].copy()
-            std = np.asarray(self.scenario.noise.pose_std)
-            if np.any(std > 0):
-                pose = pose + self._noise_rng.normal(0.0, 1.0, 3) * std
+            pose = self.poses[name] + self._noise_rng.normal(0.0, 1.0, 3) * self._pose_std
         ranges = None
         if self.sensors.enabled:
             polys = self.obstacle_polygons()
@@ -138,7 +148,7 @@ class World:
         expect = None
         if sent is not None:
             expect = {s: int(c.get("*", 0)) + int(c.get(name, 0)) for s, c in sent.items() if s != name}
-        return Obs(k, float(self.t), [float(v) for v in pose], ranges, expect, meas)
+        return Obs(k, float(self.t), pose if type(pose) is list else [float(v) for v in pose], ranges, expect, meas)
 
     def truth(self, k: int) -> Truth:
         clearance = None

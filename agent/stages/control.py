@@ -66,8 +66,10 @@ class ControlStage:
         t0 = time.perf_counter()
         try:
             res = self.controller.step(observation, inbox)
-            cmd = [float(c) for c in np.asarray(res.command, dtype=float).reshape(-1)]
-            if len(cmd) != self.command_size or not all(math.isfinite(c) for c in cmd):
+            c = res.command
+            cmd = (c.tolist() if type(c) is np.ndarray and c.ndim == 1 and c.dtype == np.float64  # the common case
+                   else [float(x) for x in np.asarray(c, dtype=float).reshape(-1)])
+            if len(cmd) != self.command_size or not all(map(math.isfinite, cmd)):
                 raise ValueError(f"controller returned command {cmd!r}; expected {self.command_size} finite values")
             messages, telemetry = res.messages, dict(res.telemetry)
         except Exception as exc:  # the robot stops for this step instead of dying

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from copath.models import limit_change, world_velocity
+from copath.models import limit_change, world_velocity_list
 from copath.scenario import Scenario
 from copath.wire.keys import Keys
 from copath.wire.messages import PeerEnvelope, to_plain
@@ -40,7 +40,7 @@ class EnvelopeStage:
              cov: list[float] | None) -> tuple[list[tuple[str, PeerEnvelope]], list[float]]:
         """(key, envelope) of each outgoing message, and the world velocity they carry."""
         self.applied = limit_change(self.model, self.applied, self.model.saturate(command)[0], self.dt)
-        vel = [float(v) for v in world_velocity(self.model, float(pose[2]), self.applied)]
+        vel = world_velocity_list(self.model, float(pose[2]), self.applied)
         peers = []
         for m in messages:
             self.seq += 1

@@ -10,6 +10,7 @@ envelope, no oracle)."""
 from __future__ import annotations
 
 import math
+import operator
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -22,6 +23,9 @@ from copath.wire.messages import Event, PeerEnvelope
 from .counters import Counters
 
 __all__ = ["FaultStage", "Released"]
+
+_ORDER = operator.attrgetter("stamp", "sender", "seq")
+"""The order released envelopes reach the controller in, whatever their arrival order."""
 
 
 @dataclass
@@ -79,7 +83,7 @@ class FaultStage:
         order (sums over neighbours stay bitwise equal); those of ``lost`` senders and from
         beyond range are dropped."""
         out = Released()
-        for env in sorted(self.inbox.pop_ready(now), key=lambda e: (e.stamp, e.sender, e.seq)):
+        for env in sorted(self.inbox.pop_ready(now), key=_ORDER):
             out.senders.append(env.sender)  # heard: when it was last heard, not how old its news is
             if env.sender in lost:
                 continue

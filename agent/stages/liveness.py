@@ -133,6 +133,9 @@ class LivenessStage:
         decision is the same in every run with the seed."""
         lost, told = self.lost, self._told
         self._told = lost
+        if (lost == told and not self._silent
+                and (not self._heard or now - min(self._heard.values()) <= self.silent_after_s + 1e-9)):
+            return []  # no token changed, nobody silent, and nobody is yet (the common step)
         events = [Event(float(now), self.robot, "peer_lost", {"robot": r}) for r in sorted(lost - told)]
         events += [Event(float(now), self.robot, "peer_rejoined", {"robot": r}) for r in sorted(told - lost)]
         for s, t in sorted(self._heard.items()):

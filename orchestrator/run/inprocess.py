@@ -18,6 +18,8 @@ the simulator publishes the truth of tick k (pose at t_k, commands applied over
 
 from __future__ import annotations
 
+import contextlib
+import gc
 import pathlib
 import time
 import uuid
@@ -117,12 +119,34 @@ def run_scenario(scenario: Scenario, duration_s: float | None = None, run_id: st
     sim.world.t = 0.0
     for a in agents.values():
         a.start()
+    with _long_lived():
+        try:
+            ok = sim.run()
+        finally:
+            for a in [*agents.values(), *started]:
+                a.link.close()
+            sim.link.close()
+        return _result(scenario, bus, keys, run_id, wall0, ok)
+
+
+@contextlib.contextmanager
+def _long_lived():
+    """What exists when the run starts (modules, the scenario, the nodes and their controllers)
+    lives for the whole run: kept out of the collector's full passes, which the records piling up
+    during the run trigger again and again (docs/journal/performance.md, "The robot step and the
+    simulator, second pass"). A caller's own ``gc.freeze`` is left alone."""
+    frozen = gc.get_freeze_count() == 0
+    if frozen:
+        gc.freeze()
     try:
-        ok = sim.run()
+        yield
     finally:
-        for a in [*agents.values(), *started]:
-            a.link.close()
-        sim.link.close()
+        if frozen:
+            gc.unfreeze()
+
+
+def _result(scenario: Scenario, bus: MemoryBus, keys: Keys, run_id: str, wall0: float, ok: bool) -> RunResult:
+    """Metrics and trace of a finished run from the records on the bus."""
     records = bus.records
     stats = [r for _, _, r in records if isinstance(r, Stats)]
     published = sum(s.published for s in stats)

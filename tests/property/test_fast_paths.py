@@ -85,3 +85,105 @@ def test_packed_record_with_numpy_and_tuples_has_plain_fields():
     d = msgpack.unpackb(env.pack())
     assert d["pos"] == [1.0, 2.0] and d["vel"] == [0.1, 0.2, 0.0] and d["payload"]["7"] == [1, 2]
     assert list(d)[:3] == ["sender", "seq", "stamp"] and d["type"] == "peer" and math.isclose(d["stamp"], 0.5)
+
+
+def _track_reference(path, xy, s0, window, resolution=0.01, extension=5.0):
+    """``track_coordinate``'s windowed search from ``s0``, written candidate by candidate (the
+    indices wrapped round a closed path, clipped to an open one's table): the grid indices
+    before the Newton steps."""
+    L = float(path.length)
+    if path.closed:
+        n = max(16, int(np.ceil(L / resolution)))
+        grid = np.arange(n) * (L / n)
+    else:
+        n = max(16, int(np.ceil((L + 2 * extension) / resolution)) + 1)
+        grid = np.linspace(-extension, L + extension, n)
+    h = float(grid[1] - grid[0])
+    P = np.asarray(path.pos(grid))
+    w = max(1, int(np.ceil(window / h)))
+    offs = np.arange(-w, w + 1)
+    i = int(round(s0 / h)) if path.closed else int(np.clip(round((s0 - grid[0]) / h), 0, n - 1))
+    idx = []
+    for k in range(len(xy)):
+        cand = i + offs
+        ci = np.mod(cand, n) if path.closed else np.clip(cand, 0, n - 1)
+        d = P[ci] - xy[k]
+        j = int(np.argmin(np.einsum("ij,ij->i", d, d)))
+        i = int(cand[j]) if path.closed else int(ci[j])
+        idx.append(i)
+    return np.asarray(idx), h, grid
+
+
+@pytest.mark.parametrize("name", ["lemniscate", "circle", "sinusoid (open)", "line (open)"])
+@pytest.mark.parametrize("window", [0.05, 0.5])
+def test_track_coordinate_searches_the_same_candidates_as_one_by_one(name, window):
+    """The padded table's slices are the wrapped (closed) or clipped (open) candidates in
+    their order: the same nearest sample, ties included (near an open end, clipped
+    candidates repeat the end point)."""
+    from copath.slots import track_coordinate  # noqa: PLC0415
+
+    p = PATHS[name]
+    rng = np.random.default_rng(7)
+    s = np.cumsum(rng.uniform(-0.02, 0.06, 300)) - 0.2 * p.length
+    xy = np.asarray(p.pos(s)) + rng.normal(0.0, 0.05, (300, 2))
+    idx, h, grid = _track_reference(p, xy, float(s[0]), window)
+    s0 = idx * h if p.closed else grid[idx]
+    got = track_coordinate(p, xy, window=window, s0=float(s[0]))
+    # the result is s0 refined by four clipped Newton steps: within the table spacing of s0,
+    # and the same as refining s0 directly
+    assert np.all(np.abs(got - s0) <= 4 * h + 1e-12)
+    want = s0
+    for _ in range(4):
+        x, y, th, kap = p.frame(want)
+        ex, ey = xy[:, 0] - x, xy[:, 1] - y
+        c, sn = np.cos(th), np.sin(th)
+        f = ex * c + ey * sn
+        df = -1.0 + kap * (-ex * sn + ey * c)
+        step = np.where(np.abs(df) > 1e-9, -f / np.where(np.abs(df) > 1e-9, df, 1.0), 0.0)
+        want = want + np.clip(step, -h, h)
+    assert got.tobytes() == want.tobytes()
+
+
+@settings(max_examples=200, deadline=None)
+@given(v=st.floats(-3.0, 3.0), w=st.floats(-5.0, 5.0), th=st.floats(-7.0, 7.0))
+def test_model_fast_paths_equal_the_array_paths(v, w, th):
+    """A unicycle's saturation of a tuple and of an array, and the envelopes' world velocity
+    as floats and as an array, agree bit for bit."""
+    from copath.models import OmniModel, UnicycleModel, world_velocity, world_velocity_list  # noqa: PLC0415
+
+    m = UnicycleModel(v_max=0.5, omega_max=1.0)
+    fast, slow = m.saturate((v, w)), m.saturate(np.array([v, w]))
+    assert fast[0].tobytes() == slow[0].tobytes() and fast[1] == slow[1]
+    assert m.saturate([v, w])[0].tobytes() == slow[0].tobytes()
+    for model, cmd in ((m, fast[0]), (OmniModel(), np.array([v, w, 0.5 * v]))):
+        as_list = world_velocity_list(model, th, cmd)
+        assert all(type(x) is float for x in as_list)
+        assert np.array(as_list).tobytes() == world_velocity(model, th, cmd).tobytes()
+        assert world_velocity_list(model, th, cmd.tolist()) == as_list
+
+
+def test_world_saturates_again_when_a_command_or_a_step_changed_it():
+    """``World.saturate_all`` skips a second pass over unchanged commands (a lockstep tick's
+    truth, then its step) but not one after a new command or a physics step."""
+    from copath.scenario import parse_scenario  # noqa: PLC0415
+    from sim.world import World  # noqa: PLC0415
+
+    model = {"type": "unicycle", "v_max": 0.5, "omega_max": 1.0, "a_max": 0.3}
+    w = World(parse_scenario({"id": "sat", "run": {"duration_s": 5.0, "dt": 0.1},
+                              "robots": [{"name": "r1", "model": model, "pose": [0.0, 0.0, 0.0]}],
+                              "controller": {"type": "tests.closed_loop.test_safety:build_silent"}}))
+    w.command("r1", [0.5, 0.0])
+    w.saturate_all()
+    assert w.applied["r1"][0] == pytest.approx(0.03)  # a_max dt from rest
+    w.saturate_all()
+    assert w.applied["r1"][0] == pytest.approx(0.03)  # idempotent
+    w.command("r1", [0.01, 0.0])
+    w.saturate_all()
+    assert w.applied["r1"][0] == pytest.approx(0.01)  # a new command is saturated again
+    w.advance(0.1)
+    w.command("r1", [0.5, 0.0])
+    w.saturate_all(0.2)
+    assert w.applied["r1"][0] == pytest.approx(0.01 + 0.06)  # from the step's command, with the new dt
+    w.advance(0.2)
+    w.saturate_all()
+    assert w.applied["r1"][0] == pytest.approx(0.07 + 0.06)  # after a step, from its command

@@ -25,6 +25,7 @@ from typing import Any, Callable, Iterable, Mapping, Sequence
 
 import numpy as np
 
+from copath.models import scale_velocities
 from copath.paths import wrap_to_pi
 
 from copath.control import (
@@ -119,7 +120,7 @@ def neighbour_states(
 
 def tracking_errors(pose, ref_pose) -> tuple[float, float, float]:
     """Errors (5.33): robot frame, desired minus actual; theta_e wrapped."""
-    x, y, th = (float(v) for v in pose)
+    x, y, th = pose.tolist() if type(pose) is np.ndarray and pose.dtype == np.float64 else (float(v) for v in pose)
     xd, yd, thd = (float(v) for v in ref_pose)
     c, s = math.cos(th), math.sin(th)
     dx, dy = xd - x, yd - y
@@ -225,7 +226,8 @@ class ConsensusController:
         errors = tracking_errors(obs.pose, (x_d, y_d, th_d))
         v_d = cfg.v0
         v, omega, delta = tracking_law(errors, v_d, kappa, sdot, cfg.k1, cfg.k4, cfg.k5, cfg.theta_a)
-        v, omega = self.model.saturate((v, omega))[0] if self.model.kind == "unicycle" else (v, omega)
+        if self.model.kind == "unicycle":  # UnicycleModel.saturate on floats: the scaling of Sec. 5.5.3
+            v, omega = scale_velocities(v, omega, self.model.v_max, self.model.omega_max)
         xi = s - cfg.s_d
         acc = consensus_acceleration(errors, delta, kappa, sdot, xi, self._neighbour_states(obs.t, xi), cfg, v_d)
         # integrate the virtual vehicle at the control rate (docs/reference/controllers-notes.md, consensus virtual vehicle (N3))

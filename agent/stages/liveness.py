@@ -85,6 +85,10 @@ class LivenessStage:
         """An overheard envelope of ``sender`` reached the safety filter at ``now``."""
         self._overheard_at[sender] = now
 
+    def overheard_all(self, senders: Iterable[str], now: float) -> None:
+        """Overheard envelopes of ``senders`` reached the safety filter at ``now``."""
+        self._overheard_at.update(dict.fromkeys(senders, now))
+
     def update(self, now: float, lost: frozenset[str]) -> Liveness:
         """The instant's liveness: ``lost`` (the token-lost robots as the step began) with the
         silent ones, cut off or not, and the events of what changed."""

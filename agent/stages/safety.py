@@ -90,7 +90,8 @@ class SafetyStage:
 
     def _admit(self, env: PeerEnvelope, record: bool = True) -> None:
         if self._trust.admit(env, "overheard", record=record and env.sender not in self._listened):
-            self._counters.add("overheard")
+            extra = self._counters.extra  # Counters.add, inline: once per robot and overheard envelope
+            extra["overheard"] = extra.get("overheard", 0) + 1
             self._overhear.push(env.sender, env.stamp, env)
 
     def hear(self, envelopes: Iterable[PeerEnvelope]) -> None:
@@ -108,10 +109,13 @@ class SafetyStage:
             early, self._early = self._early, {}
             for env in early.values():
                 self._admit(env, record=False)  # stale by the wait, not bad: no reject
-        for env in self._overhear.pop_ready(now) if self._overhear is not None else ():
-            liveness.overheard(env.sender, now)
-            if self._faults.in_range(env, pose):
-                self.guard.hear(env.sender, env.pos, env.stamp, env.vel)
+        if self._overhear is not None:
+            ready = self._overhear.pop_ready(now)
+            liveness.overheard_all([env.sender for env in ready], now)
+            hear, ranged = self.guard.hear, self._faults.comm_range > 0
+            for env in ready:
+                if not ranged or self._faults.in_range(env, pose):
+                    hear(env.sender, env.pos, env.stamp, env.vel)
         res = self.guard.apply(pose, command, now, ranges, angles, liveness.lost, liveness.quiet_for_filter(now))
         if not held:
             command = res.command.tolist()

@@ -134,8 +134,9 @@ class Path:
         self._stencil = np.array([0.0, h1, -h1, 2 * h1, -2 * h1, h2, -h2, 2 * h2, -2 * h2])
         """Offsets in phi of the nine curve points :meth:`frame` evaluates per arc length."""
         self._s_list, self._phi_list, self._dphi_list = s.tolist(), phi.tolist(), self._dphi_tab.tolist()
-        self._theta_list = self._theta_tab.tolist()
         """The s -> phi table as Python floats, for the scalar look-up."""
+        self._theta_list = self._theta_tab.tolist()
+        """The heading table as Python floats (:meth:`_interp_theta`)."""
 
     # -- derivatives of the parametric curve (5-point stencils) -------------------
     def _d1(self, phi: np.ndarray) -> np.ndarray:

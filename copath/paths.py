@@ -285,7 +285,7 @@ class Path:
         d1y = (-R[3][1] + 8 * R[1][1] - 8 * R[2][1] + R[4][1]) / (12 * h1)
         d2x = (-R[7][0] + 16 * R[5][0] - 30 * R[0][0] + 16 * R[6][0] - R[8][0]) / (12 * h2 * h2)
         d2y = (-R[7][1] + 16 * R[5][1] - 30 * R[0][1] + 16 * R[6][1] - R[8][1]) / (12 * h2 * h2)
-        sp = float(np.hypot(d1x, d1y))  # libm's hypot: math.hypot rounds differently (P13)
+        sp = float(np.hypot(d1x, d1y))  # libm's hypot: math.hypot rounds differently (safety filter's cost (P13))
         k = (d1x * d2y - d1y * d2x) / sp**3  # libm's pow, as np.power
         raw = math.atan2(d1y, d1x)
         ref = self._interp_theta(s_in, i)

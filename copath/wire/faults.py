@@ -19,13 +19,12 @@ from __future__ import annotations
 import heapq
 import math
 import zlib
-from dataclasses import dataclass
 
 import numpy as np
 
 from copath.scenario import NetworkConfig
 
-__all__ = ["LinkFaults", "FaultyInbox", "Delivery", "windows_between", "silence_outages", "SILENT_AFTER_S"]
+__all__ = ["LinkFaults", "FaultyInbox", "windows_between", "silence_outages", "SILENT_AFTER_S"]
 
 SILENT_AFTER_S = 1.0
 """The default of the silence threshold: a robot from which a neighbour has heard no
@@ -136,19 +135,14 @@ def silence_outages(net: NetworkConfig, t0: float, t1: float,
     return out
 
 
-@dataclass(order=True)
-class Delivery:
-    release: float
-    order: int
-    item: object = None
-
-
 class FaultyInbox:
     """Receiver-side queue applying :class:`LinkFaults` and delivering by release time."""
 
     def __init__(self, faults: LinkFaults) -> None:
         self.faults = faults
-        self._heap: list[Delivery] = []
+        self._heap: list[tuple[float, int, float, object]] = []
+        """(release time, arrival number, stamp, item): ordered by release, then arrival (the
+        numbers are unique, so a stamp or an item is never compared); tuples compare in C."""
         self._n = 0
 
     def push(self, sender: str, stamp: float, item: object) -> bool:
@@ -157,21 +151,21 @@ class FaultyInbox:
         if release is None:
             return False
         self._n += 1
-        heapq.heappush(self._heap, Delivery(max(release, stamp), self._n, (stamp, item)))
+        heapq.heappush(self._heap, (max(release, stamp), self._n, stamp, item))
         return True
 
     def pop_ready(self, now: float, eps: float = 1e-9) -> list[object]:
         """Items whose release time has come (never one stamped at ``now`` itself)."""
         out, later = [], []
-        while self._heap and self._heap[0].release <= now + eps:
-            d = heapq.heappop(self._heap)
-            stamp, item = d.item
-            if stamp < now - eps:
-                out.append(item)
+        heap = self._heap
+        while heap and heap[0][0] <= now + eps:
+            d = heapq.heappop(heap)
+            if d[2] < now - eps:
+                out.append(d[3])
             else:
                 later.append(d)
         for d in later:
-            heapq.heappush(self._heap, d)
+            heapq.heappush(heap, d)
         return out
 
     def __len__(self) -> int:

@@ -1162,6 +1162,10 @@ class SafetyGuard:
         """What the filter knows of every robot heard, at ``now``: a disc around its heard or
         predicted position (:meth:`_neighbour`), or, for a robot held still since it was lost, a
         static disc (:meth:`_held`)."""
+        return [nb for _, nb in self.named_neighbours(now)]
+
+    def named_neighbours(self, now: float) -> list[tuple[str, Neighbour]]:
+        """:meth:`neighbours` with each robot's name, in the same order."""
         if len(self._order) != len(self._heard):
             self._order = sorted(self._heard)
         lost = self._lost_at
@@ -1169,7 +1173,7 @@ class SafetyGuard:
         for sender in self._order:
             nb = self._held(sender, now) if sender in lost else self._neighbour(sender, now)
             if nb is not None:
-                out.append(nb)
+                out.append((sender, nb))
         return out
 
     def _neighbour(self, sender: str, now: float) -> Neighbour:

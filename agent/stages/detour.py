@@ -52,10 +52,15 @@ class DetourStage:
         deaf = self._held_at is not None and now - self._held_at <= self._lease
         if safety is not None and (ranges is not None or liveness.lost or liveness.quiet_for_filter(now)
                                    or planner.plan is not None or planner.stalled(now)):
-            for nb in safety.guard.neighbours(now):  # held discs, and live ones to tell teammates in the ring
+            # a held disc is a block only while its robot is lost or quiet at this step: the filter
+            # learns of a return in its own stage, after this one, and a robot restarted this very
+            # tick was once planned round as a disc grown for its outage (an E5.4 soak: a 0.81 m
+            # detour, the column out of order for a minute; docs/journal/faults.md, "Chaos soak, realtime")
+            gone = liveness.lost | liveness.quiet_for_filter(now)
+            for name, nb in safety.guard.named_neighbours(now):  # held discs, and live ones to tell teammates in the ring
                 spread = nb.spread if nb.spread is not None else nb.speed_max * nb.age
                 peers.append((nb.position[0], nb.position[1], nb.radius + (0.0 if nb.held else spread),
-                              nb.held and not deaf))
+                              nb.held and not deaf and name in gone))
         else:
             for m in inbox:
                 if m.position is not None:

@@ -10,7 +10,7 @@ The TOML layout (every table optional unless said)::
     title = "..."
     [run]       duration_s, dt, clock ("lockstep" | "realtime"), settle_s, seed,
                 tick_timeout_s, rate_hz (realtime controller rate; default 1/dt),
-                until, secure, on_robot_failure, watchdog_s, lease_s, liveliness_grace_s,
+                until, secure, on_robot_failure, watchdog_s, command_timeout_s, lease_s, liveliness_grace_s,
                 cut_off ("hold" | "drive"; docs/reference/faults.md)
     [network]   delay_ms, jitter_ms, loss, burst_p_gb, burst_p_bg, burst_loss,
                 range_m (0 = fixed graph from robots.neighbours),
@@ -125,6 +125,12 @@ class RunConfig:
     watchdog_s: float = 5.0
     """An agent that hears nothing from the simulator for this long commands zero
     velocity and logs an event (0: off)."""
+    command_timeout_s: float = 1.0
+    """Realtime runs: a robot whose base has received no command for this long [s] stops (zero
+    command, within its acceleration limits), as a real base's command timeout does; event
+    ``command_timeout`` (0: off). An agent whose step hangs (a solver that takes seconds) keeps its
+    liveliness, so nothing else stops its robot driving on its last command (docs/reference/faults.md,
+    "A base stops on stale commands"). Lockstep runs wait for every command (``tick_timeout_s``)."""
     lease_s: float = 1.0
     """Zenoh transport lease of every process of the run and of its router [s]: a frozen
     process loses its liveliness within about this time. On a machine with far more
@@ -156,6 +162,7 @@ class RunConfig:
         require(self.on_robot_failure in FAILURE_POLICIES, "run.on_robot_failure", self.on_robot_failure,
                 f"allowed: {', '.join(FAILURE_POLICIES)}")
         require(self.watchdog_s >= 0, "run.watchdog_s", self.watchdog_s, "must be >= 0 (0: off)")
+        require(self.command_timeout_s >= 0, "run.command_timeout_s", self.command_timeout_s, "must be >= 0 (0: off)")
         require(self.lease_s > 0, "run.lease_s", self.lease_s, "must be > 0")
         require(self.liveliness_grace_s >= 0, "run.liveliness_grace_s", self.liveliness_grace_s, "must be >= 0")
         require(self.cut_off in CUT_OFF_RULES, "run.cut_off", self.cut_off, f"allowed: {', '.join(CUT_OFF_RULES)}")

@@ -129,6 +129,11 @@ class SimNode:
         self.sent: dict[str, dict[str, int]] = {}
         self._start_rec: Start | None = None
         """The run's start record, announced again to a robot that rejoins (its clock)."""
+        self._cmd_at: dict[str, float] = {}
+        """Realtime: simulated time of each robot's last command received."""
+        self._timed_out: set[str] = set()
+        """Realtime: robots stopped by the command timeout, until their next command."""
+        self.command_timeouts = 0
 
     # -- callbacks (zenoh threads) ----------------------------------------------------
     def _on_cmd(self, key: str, rec) -> None:
@@ -188,11 +193,30 @@ class SimNode:
                 logger.info("robot %s's token appeared after the start: start record announced again", name)
             if alive and name in self.down:
                 self.down.discard(name)
+                self._cmd_at[name] = float(self.world.t)  # the command timeout counts from its return
                 self._event("robot_rejoined", robot=name)
             elif not alive and name not in self.down:
                 self.down.add(name)
                 self.world.command(name, [0.0] * self.scenario.robot(name).model.command_size)
                 self._event("robot_lost", robot=name, policy=self.policy)
+
+    def _stop_stale(self, t: float) -> None:
+        """Realtime: a robot whose base has had no command for ``run.command_timeout_s`` stops,
+        as a real base's command timeout stops it (docs/reference/faults.md, "A base stops on
+        stale commands"): a robot whose agent hangs keeps its liveliness, and would otherwise
+        drive on its last command, blind. A robot lost is already held; one that never
+        commanded has stood still since the start."""
+        limit = self.scenario.run.command_timeout_s
+        if limit <= 0:
+            return
+        for name, at in self._cmd_at.items():
+            if t - at > limit and name not in self._timed_out and name not in self.down:
+                self._timed_out.add(name)
+                self.command_timeouts += 1
+                self.world.command(name, [0.0] * self.scenario.robot(name).model.command_size)
+                self._event("command_timeout", robot=name, last_command_s=round(at, 3), timeout_s=limit)
+                logger.warning("robot %s: no command for %.2f s (run.command_timeout_s = %g): its base stops",
+                               name, t - at, limit)
 
     def _event(self, what: str, **detail) -> None:
         self.link.publish(self.keys.event("sim"), Event(float(self.world.t), "sim", what, detail))
@@ -347,7 +371,10 @@ class SimNode:
                 except queue.Empty:
                     break
                 self.world.command(name, cmd.cmd)
+                self._cmd_at[name] = t
+                self._timed_out.discard(name)
             if t >= next_obs - 1e-9:
+                self._stop_stale(t)
                 reason = self._fault_windows(next_obs, next_obs + run.dt)
                 if reason:
                     return k, False, reason
@@ -373,7 +400,8 @@ class SimNode:
         self._closing = True
         self._reject_event(closing=True)
         self.link.publish(self.keys.end, End(k, float(self.world.t), reason, ok))
-        counters = {"missed_ticks": self.missed, "stale_commands": self.stale, "physics_overruns": self.overruns, "rejects": self.link.rejects}
+        counters = {"missed_ticks": self.missed, "stale_commands": self.stale, "physics_overruns": self.overruns, "rejects": self.link.rejects,
+                    "command_timeouts": self.command_timeouts}
         cpu = os.times()
         counters["cpu_s"] = round(cpu.user + cpu.system, 3)  # this process (in-process runs: the whole run)
         self.link.publish(self.keys.stats("sim"), Stats("sim", self.link.published, counters))

@@ -4,7 +4,7 @@ partitioned over and over on a seeded schedule, graded from its log.
     copath bench chaos [--scenario e5.4-] [--clock realtime|lockstep]
                        [--policy restart|continue] [--minutes 10] [--faults 40]
                        [--seed 1] [--kinds kill,stop,stall,silence,partition]
-                       [--burst] [--inprocess] [--out DIR] [--json]
+                       [--burst] [--set KEY=VALUE ...] [--inprocess] [--out DIR] [--json]
 
 (or ``python -m orchestrator.studies.bench.chaos`` with the same arguments).
 

@@ -26,13 +26,27 @@ import numpy as np
 from .offsets import Quintic
 from .paths import Path
 
-__all__ = ["track_coordinate", "offset_points", "switching_offsets", "solve_coordinate", "wrap_near"]
+__all__ = ["track_coordinate", "coordinate_grid", "offset_points", "switching_offsets", "solve_coordinate", "wrap_near"]
 
 
 def wrap_near(d, period: float):
     """d mapped into [-period/2, period/2] when period > 0 (unchanged otherwise)."""
     d = np.asarray(d, dtype=float)
     return d - period * np.round(d / period) if period > 0 else d
+
+
+def coordinate_grid(path, resolution: float = 0.01, extension: float = 5.0) -> tuple[np.ndarray, float, np.ndarray]:
+    """The table :func:`track_coordinate` searches: path coordinates ``grid`` (a closed path's
+    period in steps of about ``resolution``; an open path's length and ``extension`` beyond
+    each end), their spacing ``h`` and the points ``P`` of the path there."""
+    L = float(path.length)
+    if path.closed:
+        n = max(16, int(np.ceil(L / resolution)))
+        grid = np.arange(n) * (L / n)
+    else:
+        n = max(16, int(np.ceil((L + 2 * extension) / resolution)) + 1)
+        grid = np.linspace(-extension, L + extension, n)
+    return grid, float(grid[1] - grid[0]), np.asarray(path.pos(grid))
 
 
 def track_coordinate(path: Path, xy, window: float = 0.5, resolution: float = 0.01,
@@ -70,14 +84,8 @@ def track_coordinate(path: Path, xy, window: float = 0.5, resolution: float = 0.
     if T == 0:
         return np.zeros(0)
     L = float(path.length)
-    if path.closed:
-        n = max(16, int(np.ceil(L / resolution)))
-        grid = np.arange(n) * (L / n)
-    else:
-        n = max(16, int(np.ceil((L + 2 * extension) / resolution)) + 1)
-        grid = np.linspace(-extension, L + extension, n)
-    h = float(grid[1] - grid[0])
-    P = np.asarray(path.pos(grid))
+    grid, h, P = coordinate_grid(path, resolution, extension)
+    n = len(grid)
     w = max(1, int(np.ceil(window / h)))
     idx = np.empty(T, dtype=np.int64)
     if s0 is None:

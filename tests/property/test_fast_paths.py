@@ -13,6 +13,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from copath.paths import circle, ellipse, eight_curve, lemniscate, line, sinusoid, spline
+from copath.slots import coordinate_grid
 from copath.wire.messages import PeerEnvelope, to_plain
 
 PATHS = {
@@ -91,15 +92,8 @@ def _track_reference(path, xy, s0, window, resolution=0.01, extension=5.0):
     """``track_coordinate``'s windowed search from ``s0``, written candidate by candidate (the
     indices wrapped round a closed path, clipped to an open one's table): the grid indices
     before the Newton steps."""
-    L = float(path.length)
-    if path.closed:
-        n = max(16, int(np.ceil(L / resolution)))
-        grid = np.arange(n) * (L / n)
-    else:
-        n = max(16, int(np.ceil((L + 2 * extension) / resolution)) + 1)
-        grid = np.linspace(-extension, L + extension, n)
-    h = float(grid[1] - grid[0])
-    P = np.asarray(path.pos(grid))
+    grid, h, P = coordinate_grid(path, resolution, extension)
+    n = len(grid)
     w = max(1, int(np.ceil(window / h)))
     offs = np.arange(-w, w + 1)
     i = int(round(s0 / h)) if path.closed else int(np.clip(round((s0 - grid[0]) / h), 0, n - 1))

@@ -26,7 +26,7 @@ import numpy as np
 from .offsets import Quintic
 from .paths import Path
 
-__all__ = ["track_coordinate", "coordinate_grid", "offset_points", "switching_offsets", "solve_coordinate", "wrap_near"]
+__all__ = ["track_coordinate", "coordinate_grid", "refine_coordinate", "offset_points", "switching_offsets", "solve_coordinate", "wrap_near"]
 
 
 def wrap_near(d, period: float):
@@ -110,8 +110,13 @@ def track_coordinate(path: Path, xy, window: float = 0.5, resolution: float = 0.
         j = int(np.argmin(np.einsum("ij,ij->i", d, d)))
         i = i - w + j if path.closed else min(max(i - w + j, 0), n - 1)
         idx[k] = i
-    s = idx * h if path.closed else grid[idx]
-    for _ in range(4):  # Newton on (p - r(s)) . t(s) = 0, steps clipped to the table spacing
+    return refine_coordinate(path, xy, idx * h if path.closed else grid[idx], h)
+
+
+def refine_coordinate(path, xy: np.ndarray, s: np.ndarray, h: float, steps: int = 4) -> np.ndarray:
+    """``steps`` Newton steps on ``(p - r(s)) . t(s) = 0`` from ``s`` for the points ``xy`` (T x 2),
+    each clipped to ``h`` (the search table's spacing, :func:`coordinate_grid`)."""
+    for _ in range(steps):
         x, y, th, kap = path.frame(s)
         ex, ey = xy[:, 0] - x, xy[:, 1] - y
         c, sn = np.cos(th), np.sin(th)

@@ -13,7 +13,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from copath.paths import circle, ellipse, eight_curve, lemniscate, line, sinusoid, spline
-from copath.slots import coordinate_grid
+from copath.slots import coordinate_grid, refine_coordinate
 from copath.wire.messages import PeerEnvelope, to_plain
 
 PATHS = {
@@ -126,16 +126,7 @@ def test_track_coordinate_searches_the_same_candidates_as_one_by_one(name, windo
     # the result is s0 refined by four clipped Newton steps: within the table spacing of s0,
     # and the same as refining s0 directly
     assert np.all(np.abs(got - s0) <= 4 * h + 1e-12)
-    want = s0
-    for _ in range(4):
-        x, y, th, kap = p.frame(want)
-        ex, ey = xy[:, 0] - x, xy[:, 1] - y
-        c, sn = np.cos(th), np.sin(th)
-        f = ex * c + ey * sn
-        df = -1.0 + kap * (-ex * sn + ey * c)
-        step = np.where(np.abs(df) > 1e-9, -f / np.where(np.abs(df) > 1e-9, df, 1.0), 0.0)
-        want = want + np.clip(step, -h, h)
-    assert got.tobytes() == want.tobytes()
+    assert got.tobytes() == refine_coordinate(p, xy, s0, h).tobytes()
 
 
 @settings(max_examples=200, deadline=None)

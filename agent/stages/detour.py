@@ -50,13 +50,14 @@ class DetourStage:
         # a robot just released from a cut-off hold judged the others silent from its own
         # deafness: until it has listened for a lease, their held discs are not blocks
         deaf = self._held_at is not None and now - self._held_at <= self._lease
-        if safety is not None and (ranges is not None or liveness.lost or liveness.quiet_for_filter(now)
+        quiet = liveness.quiet_for_filter(now) if safety is not None else frozenset()
+        if safety is not None and (ranges is not None or liveness.lost or quiet
                                    or planner.plan is not None or planner.stalled(now)):
             # a held disc is a block only while its robot is lost or quiet at this step: the filter
             # learns of a return in its own stage, after this one, and a robot restarted this very
             # tick was once planned round as a disc grown for its outage (an E5.4 soak: a 0.81 m
             # detour, the column out of order for a minute; docs/journal/faults.md, "Chaos soak, realtime")
-            gone = liveness.lost | liveness.quiet_for_filter(now)
+            gone = liveness.lost | quiet
             for name, nb in safety.guard.named_neighbours(now):  # held discs, and live ones to tell teammates in the ring
                 spread = nb.spread if nb.spread is not None else nb.speed_max * nb.age
                 peers.append((nb.position[0], nb.position[1], nb.radius + (0.0 if nb.held else spread),

@@ -81,10 +81,6 @@ class LivenessStage:
         for s in senders:
             self._heard[s] = now
 
-    def overheard(self, sender: str, now: float) -> None:
-        """An overheard envelope of ``sender`` reached the safety filter at ``now``."""
-        self._overheard_at[sender] = now
-
     def overheard_all(self, senders: Iterable[str], now: float) -> None:
         """Overheard envelopes of ``senders`` reached the safety filter at ``now``."""
         self._overheard_at.update(dict.fromkeys(senders, now))

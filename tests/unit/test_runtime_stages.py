@@ -152,7 +152,7 @@ def test_with_overhearing_a_robot_overheard_within_the_lease_keeps_it_connected(
     scen = _e55()
     live = LivenessStage(scen, "r3", CutOffRule.for_robot(scen, "r3", _handles()), overhearing=True)
     live.heard(["r2"], 1.0)
-    live.overheard("r1", 2.5)
+    live.overheard_all(["r1"], 2.5)
     out = live.update(2.6, frozenset())
     assert out.lost == {"r2"} and not out.cut_off  # r2 silent in the inbox, r1 overheard
     assert live.quiet_for_filter(2.6) == frozenset()  # for the filter, silence is any envelope's

@@ -470,6 +470,16 @@ for _ in range(_MAX_DEPTH + 2):
 """Plain values with string map keys, nested at most ten levels: what the free-form fields
 take on the fast path (deeper values, other keys, bytes or extension types: the Python path)."""
 
+_PLAIN_FINITE: Any = Union[None, bool, int, Annotated[float, msgspec.Meta(ge=-_MAX, le=_MAX)], str]
+for _ in range(_MAX_DEPTH):
+    _PLAIN_FINITE = Union[None, bool, int, Annotated[float, msgspec.Meta(ge=-_MAX, le=_MAX)], str,
+                          list[_PLAIN_FINITE], dict[str, _PLAIN_FINITE]]
+"""What :func:`_check_plain` accepts, checked in C: plain values with string map keys and
+finite floats, a value at most ``_MAX_DEPTH`` levels below the field (an empty list or map at
+the last level, which the Python check also accepts, takes the Python path). A payload's
+``any`` fields are decoded with it, so a role_state envelope's relayed tables (known, claims,
+rulings) are no longer walked in Python (docs/journal/performance.md, over Zenoh, third pass (P23))."""
+
 _FAST_TYPES: dict[str, Any] = {
     "float": _FINITE,
     "int": int,
@@ -537,9 +547,7 @@ class _PayloadCheck(NamedTuple):
     schema: dict[str, str]
     """The schema it was built from (``PAYLOADS[kind]``)."""
     decoder: msgspec.msgpack.Decoder
-    """Decodes a whole peer envelope, checking only its payload's typed fields."""
-    plain: tuple[str, ...]
-    """Fields of type ``any``: checked in Python (:func:`_check_plain`)."""
+    """Decodes a whole peer envelope, checking its payload's fields, the ``any`` ones with :data:`_PLAIN_FINITE`."""
 
 
 _PAYLOAD_CHECKS: dict[str, _PayloadCheck | None] = {}
@@ -558,13 +566,12 @@ def _payload_check(kind: str) -> _PayloadCheck | None:
     for name, typ in schema.items():
         optional = name.endswith("?")
         key = name[:-1] if optional else name
-        t = _FAST_TYPES[typ]
+        t = _PLAIN_FINITE if typ == "any" else _FAST_TYPES[typ]
         fields.append((key, t, msgspec.UNSET) if optional else (key, t))
     fields.sort(key=lambda f: len(f) == 3)  # required first
     payload = msgspec.defstruct(f"_{kind}Payload", fields, gc=False)
     envelope = msgspec.defstruct(f"_{kind}Envelope", [("payload", payload)], gc=False)
-    got = _PAYLOAD_CHECKS[kind] = _PayloadCheck(schema, msgspec.msgpack.Decoder(envelope),
-                                                tuple(n.rstrip("?") for n, t in schema.items() if t == "any"))
+    got = _PAYLOAD_CHECKS[kind] = _PayloadCheck(schema, msgspec.msgpack.Decoder(envelope))
     return got
 
 
@@ -604,11 +611,7 @@ def unpack(data: bytes | bytearray | memoryview):
                     if check is None:
                         validate_payload(d["kind"], d["payload"])
                     else:
-                        check.decoder.decode(data)
-                        payload = d["payload"]
-                        for name in check.plain:
-                            if name in payload:
-                                _check_plain(payload[name], f"{head.kind}.{name}")
+                        check.decoder.decode(data)  # the "any" fields too (_PLAIN_FINITE)
                 elif cls is Obs and d["meas"] is not None:
                     Obs._check_meas(d["meas"])
                 rec = _new(cls)

@@ -170,3 +170,23 @@ def test_every_record_of_an_in_process_run_packs_to_the_same_bytes_and_decodes_a
         data = rec.pack()
         assert data == _old_pack(rec)
         assert _outcome(unpack, data) == _outcome(unpack_checked, data)
+
+
+def _nested(depth: int, leaf):
+    v = leaf
+    for i in range(depth):
+        v = [v] if i % 2 else {"k": v}
+    return v
+
+
+def test_any_fields_at_the_depth_limit_are_accepted_or_refused_alike():
+    """A role_state ``any`` field is checked in C (``_PLAIN_FINITE``): at, below and past the
+    nesting limit of the Python check, with finite and non-finite leaves and empty containers
+    at the last level, both decoders agree."""
+    outcomes = set()
+    for depth in range(6, 12):
+        for leaf in (1.0, 2, "s", None, True, math.nan, -math.inf, [], {}, [1.0], {"a": 1.0}):
+            for field in ("known", "rulings", "claims", "gone"):
+                payload = {**ROLE, field: _nested(depth, leaf)}
+                outcomes.add(_same(PeerEnvelope("r3", 9, 0.7, "role_state", [1.0, 2.0], payload).pack()))
+    assert outcomes == {"accepted", "refused"}

@@ -135,10 +135,16 @@ class RoleBook:
 
     def merge(self, taken_sets: Iterable[Iterable[int]], claims: Iterable[int] = ()) -> None:
         """Algorithm 6.2 lines 1-2 with docs/reference/ambiguities.md, sets united in Algorithm 6.2 (A24): J^t_i <- J^t_i U (U_j J^t_j)."""
-        skip = self.released
+        skip, n, taken = self.released, self.n_positions, self.taken
         for ts in taken_sets:
-            self.taken.update(int(k) for k in ts if 0 <= int(k) < self.n_positions and int(k) not in skip)
-        self.taken.update(int(k) for k in claims if 0 <= int(k) < self.n_positions)
+            for k in ts:
+                k = int(k)
+                if 0 <= k < n and k not in skip:
+                    taken.add(k)
+        for k in claims:
+            k = int(k)
+            if 0 <= k < n:
+                taken.add(k)
 
     def release(self, positions: Iterable[int]) -> None:
         """Release the positions of lost robots (docs/reference/ambiguities.md, robot lost in role assignment (A38)): they leave

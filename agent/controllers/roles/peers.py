@@ -57,11 +57,21 @@ class PeerTable:
         for got in self.inbox.update(inbox, t):
             pl = dict(got.payload)
             pos = got.position if got.position is not None else pl.get("pos")
-            vel = np.asarray(pl.get("vel") or (0.0, 0.0), dtype=float)
+            v = pl.get("vel") or (0.0, 0.0)
+            age = max(got.message.age, 0.0)
+            if len(v) == 2 and len(pos) == 2:
+                # floats, then one array: the same two products and sums numpy's
+                # pos + vel * age does (docs/journal/performance.md, over Zenoh, third pass (P23))
+                vx, vy = float(v[0]), float(v[1])
+                vel = np.array((vx, vy))
+                position = np.array((float(pos[0]) + vx * age, float(pos[1]) + vy * age))
+            else:
+                vel = np.asarray(v, dtype=float)
+                position = np.asarray(pos, dtype=float) + vel * age
             self.peers[got.sender] = Peer(
                 heard=got.received_at,
-                age=max(got.message.age, 0.0),
-                position=np.asarray(pos, dtype=float) + vel * max(got.message.age, 0.0),
+                age=age,
+                position=position,
                 velocity=vel,
                 task=int(pl.get("task", -1)),
                 index=int(pl.get("index", 0)),

@@ -43,6 +43,13 @@ warning and returns a :class:`SolveResult`
 with ``ok=False`` whose plan is the previous plan shifted by one step (``fallback =
 "shifted"``) while one is left, else the ``stop`` input repeated (``fallback = "stop"``).
 
+Time cap: with ``SolverConfig.max_solve_s`` a solve (its retry included) that runs longer
+stops at its next iteration (an ``iteration_callback``; IPOPT also gets ``max_wall_time``),
+is not retried and falls back as above; ``SolveResult.timed_out`` says so and
+``MPCSolver.timeouts`` counts them. A JIT-compiled solver comes from the solver cache and
+carries no callback (a Python callback cannot be saved): the cap applies to solvers built
+without JIT (docs/reference/controllers.md, "Solve time cap").
+
 Usage
 -----
 >>> import casadi as ca
@@ -75,8 +82,10 @@ dkappa/ds look-ups along a horizon; defined in :mod:`copath.paths`, re-exported 
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
+import time
 from dataclasses import dataclass, field
 from typing import Callable, Sequence
 
@@ -163,6 +172,40 @@ def jit_available() -> bool:
             logger.info("CasADi JIT unavailable, using the virtual machine: %s", exc)
             _JIT_OK = False
     return _JIT_OK
+
+
+class _WallCap(ca.Callback):
+    """The ``iteration_callback`` of a capped solver: asks the solver to stop (a nonzero
+    return: ``User_Requested_Stop``) once the wall clock passes :attr:`deadline`."""
+
+    def __init__(self, name: str, nx: int, ng: int, np_: int) -> None:
+        ca.Callback.__init__(self)
+        self._sizes = {"x": nx, "lam_x": nx, "g": ng, "lam_g": ng, "lam_p": np_, "f": 1}
+        self.deadline = math.inf
+        self.fired = False
+        self.construct(name, {})
+
+    def get_n_in(self) -> int:
+        return ca.nlpsol_n_out()
+
+    def get_n_out(self) -> int:
+        return 1
+
+    def get_name_in(self, i: int) -> str:
+        return ca.nlpsol_out(i)
+
+    def get_name_out(self, i: int) -> str:
+        return "stop"
+
+    def get_sparsity_in(self, i: int) -> ca.Sparsity:
+        n = self._sizes[ca.nlpsol_out(i)]
+        return ca.Sparsity.scalar() if ca.nlpsol_out(i) == "f" else ca.Sparsity.dense(n)
+
+    def eval(self, arg):
+        if time.perf_counter() > self.deadline:
+            self.fired = True
+            return [1]
+        return [0]
 
 
 SXFn = Callable[..., ca.SX]
@@ -273,6 +316,8 @@ class SolveResult:
     """Soft-constraint slacks at the solution."""
     fallback: str | None = None
     """None, ``"shifted"`` (previous plan shifted) or ``"stop"``."""
+    timed_out: bool = False
+    """The solve was stopped by the time cap (``SolverConfig.max_solve_s``)."""
 
     @property
     def u0(self) -> np.ndarray:
@@ -294,6 +339,7 @@ class MPCSolver:
     def __init__(self, ocp: OCP, config: SolverConfig | None = None) -> None:
         self.ocp = ocp
         self.config = config or SolverConfig()
+        self._cap: _WallCap | None = None
         self._build_symbolic()
         self._solver = self._make_solver()
         self._plan_w: np.ndarray | None = None
@@ -302,6 +348,8 @@ class MPCSolver:
         self._fallback_plan: np.ndarray | None = None
         self._fallback_x: np.ndarray | None = None
         self.failures = 0
+        self.timeouts = 0
+        """Solves stopped by the time cap."""
         self._build_shift_indices()
         self._setup_buffer()
 
@@ -399,7 +447,7 @@ class MPCSolver:
 
                 problem = ca.Function("nlp", [self._w, self._p], [self._f, self._g, self._r]).serialize()
                 # keyed by structure and options, not by robot: robots with the same problem share it
-                key = solver_cache.solver_key(problem, repr(self.config))
+                key = solver_cache.solver_key(problem, repr(dataclasses.replace(self.config, max_solve_s=None)))
                 return solver_cache.cached_function("nlpsol", key, lambda: self._nlpsol(True))
             return self._nlpsol(use_jit)
         except Exception as exc:  # compiler failure: fall back silently (logged)
@@ -424,10 +472,15 @@ class MPCSolver:
 
     def _make_nlpsol(self, nlp: dict, opts: dict, use_jit: bool) -> ca.Function:
         c = self.config
+        if c.max_solve_s is not None and not use_jit:  # a cached (JIT) solver cannot carry a Python callback
+            self._cap = _WallCap(f"{self.ocp.name}_cap", self._w.numel(), self._g.numel(), self._p.numel())
+            opts["iteration_callback"] = self._cap
         if c.method == "ipopt":
             opts["ipopt"] = {"print_level": 0, "max_iter": c.max_iter, "tol": c.tol,
                              "sb": "yes", "warm_start_init_point": "yes",
                              "mu_init": 1e-3, "acceptable_tol": 1e-4}
+            if c.max_solve_s is not None:
+                opts["ipopt"]["max_wall_time"] = float(c.max_solve_s)
             if c.hessian == "gauss-newton":  # ipopt takes the upper triangle only
                 opts["hess_lag"] = self._gn_hessian(use_jit, upper=True)
             return ca.nlpsol(f"{self.ocp.name}_ipopt", "ipopt", nlp, opts)
@@ -624,12 +677,20 @@ class MPCSolver:
         w0[: o.nx] = x0
         # keep the initial guess inside the box (active-set QP solvers prefer it)
         np.clip(w0, lo, hi, out=w0)
+        cap = self._cap
+        if cap is not None and _retry:  # one deadline for the solve and its retry
+            cap.deadline = time.perf_counter() + self.config.max_solve_s
         try:
             self._trigger()  # zero-copy call through the FunctionBuffer (docs/journal/measurements.md, NMPC solver choice (W11): ~60 us saved)
             stats = self._buffer.stats()
         except Exception as exc:  # CasADi raises RuntimeError on evaluation errors
             return self._fail(f"exception: {exc}", x0)
         status = str(stats.get("return_status", "unknown"))
+        if cap is not None and (cap.fired or status == "Maximum_WallTime_Exceeded"):
+            cap.fired = False
+            self.timeouts += 1
+            return dataclasses.replace(self._fail(f"time cap of {self.config.max_solve_s:.3g} s reached ({status})", x0),
+                                       timed_out=True)
         w = io["x"].copy()
         g = io["g"]
         viol = max(0.0, float(np.max(lbg - g, initial=0.0)), float(np.max(g - ubg, initial=0.0)))

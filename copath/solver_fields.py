@@ -43,8 +43,14 @@ class SolverConfig:
     """Linear penalty per unit slack of soft constraints (exact penalty)."""
     slack_weight_quadratic: float = 1e2
     """Quadratic penalty per unit slack squared of soft constraints."""
+    max_solve_s: float | None = None
+    """Wall-time cap of one solve, its retry included [s]; None: no cap. A solve that
+    reaches it stops at its next iteration and the fallback policy applies
+    (docs/reference/controllers.md, "Solve time cap")."""
 
     def __post_init__(self) -> None:
+        require(self.max_solve_s is None or self.max_solve_s > 0, "solver.max_solve_s", self.max_solve_s,
+                "must be > 0 (or None: no cap)")
         require(self.method in SOLVER_METHODS, "solver.method", self.method, f"allowed: {', '.join(SOLVER_METHODS)}")
         require(self.qp_solver in QP_SOLVERS, "solver.qp_solver", self.qp_solver, f"allowed: {', '.join(QP_SOLVERS)}")
         require(self.hessian in HESSIANS, "solver.hessian", self.hessian, f"allowed: {', '.join(HESSIANS)}")

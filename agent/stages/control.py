@@ -77,6 +77,8 @@ class ControlStage:
             failure = self._failed(exc, k, now)
         else:
             failure = None
+            if "solve_timeout" in telemetry:
+                failure = self._timed_out(telemetry["solve_timeout"], k, now)
         return ControlResult(cmd, messages, telemetry, (time.perf_counter() - t0) * 1e3, failure)
 
     def _failed(self, exc: BaseException, k: int, now: float) -> Event | None:
@@ -98,6 +100,16 @@ class ControlStage:
         return Event(float(now), self.robot, "controller_error",
                      {"k": int(k), "error": type(exc).__name__, "message": str(exc)[:_ERROR_CHARS],
                       "traceback": tb[-_TRACEBACK_CHARS:]})
+
+    def _timed_out(self, detail, k: int, now: float) -> Event:
+        """A solve stopped by its time cap (the controller's telemetry ``solve_timeout``:
+        docs/reference/controllers.md, "Solve time cap"): counted, logged, and a
+        ``solve_timeout`` event (robot, time, the cap and the fallback the controller used)."""
+        self._counters.add("solve_timeouts")
+        detail = dict(detail) if isinstance(detail, dict) else {}
+        logger.warning("robot %s: a solve reached its time cap at t=%.3f s (tick %d): %s; fallback command used",
+                       self.robot, now, k, detail)
+        return Event(float(now), self.robot, "solve_timeout", {"k": int(k), **detail})
 
     def close(self) -> None:
         """The closing account's word on failures (the first one's traceback is logged already)."""

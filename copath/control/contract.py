@@ -128,6 +128,9 @@ class RobotContext:
     seed: int = 0
     comm_range: float = 0.0
     """Communication range r [m] of a dynamic graph; 0 for a fixed graph."""
+    realtime: bool = False
+    """The run steps on the wall clock (``run.clock = "realtime"``): a controller may cap its
+    solves' wall time there (docs/reference/controllers.md, "Solve time cap"), never in lockstep."""
 
     @classmethod
     def for_robot(cls, scenario: "Scenario", name: str) -> "RobotContext":
@@ -146,6 +149,7 @@ class RobotContext:
             params=dict(spec.params),
             seed=scenario.run.seed,
             comm_range=comm_range,
+            realtime=scenario.run.clock == "realtime",
         )
 
     @property

@@ -62,9 +62,14 @@ class DMPCConfig(SolverFields):
     """Initial path coordinate [m]; default: projection of the first pose onto the path."""
     substeps: int = 1
     """RK4 steps per interval."""
+    max_solve_periods: float = 4.0
+    """Cap of one solve's wall time in a realtime run, in control periods; 0: no cap (chosen: a
+    runtime choice, not the law's; docs/reference/controllers.md, "Solve time cap"). Lockstep
+    runs are never capped: their results must not depend on the machine's speed."""
 
     def __post_init__(self) -> None:
         super().__post_init__()
+        require(self.max_solve_periods >= 0, "max_solve_periods", self.max_solve_periods, "must be >= 0 (0: no cap)")
         require(self.base_speed > 0, "base_speed", self.base_speed, "must be > 0")
         require(self.horizon >= 2, "horizon", self.horizon, "must be >= 2 (the lateral error needs two steps)")
         for name, n in (("Q", 5), ("R", 4), ("P", 5), ("k_terminal", 4)):

@@ -36,6 +36,7 @@ plan (linearised curvature, docs/journal/measurements.md, what made the omni NMP
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 from dataclasses import dataclass
@@ -46,7 +47,7 @@ import numpy as np
 
 from copath.config import ConfigError
 from copath.morphing import Morphing, morphing
-from copath.mpc import OCP, MPCSolver, weighted
+from copath.mpc import OCP, MPCSolver, SolverConfig, weighted
 from copath.paths import Path, wrap_to_pi
 
 from copath.control import LatestMessages, Observation, Outgoing, PeerMessage, RobotContext, StepResult
@@ -238,6 +239,12 @@ def _ocp(cfg: DMPCConfig, n_nbr: int, dt: float, q: float, scale: float, M: np.n
 # -- the controller ----------------------------------------------------------------------
 
 
+def _capped(solver: SolverConfig, cap_s: float) -> SolverConfig:
+    """``solver`` with its solves capped at ``cap_s`` of wall time (0: none), in a realtime run
+    only (docs/reference/controllers.md, "Solve time cap")."""
+    return dataclasses.replace(solver, max_solve_s=cap_s) if cap_s > 0 else solver
+
+
 class DMPCController:
     """One robot of the Sec. 5.4 team (Algorithm 5.1)."""
 
@@ -266,7 +273,7 @@ class DMPCController:
         self.table = self.path.table()
         self.mpc = MPCSolver(
             _ocp(cfg, len(self.nbrs), self.dt, self.q, self.morph.scale, ctx.model.M, ctx.model.qdot_max),
-            cfg.solver_config(),
+            _capped(cfg.solver_config(), cfg.max_solve_periods * ctx.dt if ctx.realtime else 0.0),
         )
         self.s: float | None = cfg.s0
         self.theta_t: float | None = None
@@ -413,5 +420,7 @@ class DMPCController:
             "solver_ok": bool(res.ok),
             "neighbours_used": used,
         }
+        if res.timed_out:  # the control stage puts it on the timeline (docs/reference/controllers.md)
+            telemetry["solve_timeout"] = {"cap_s": float(self.mpc.config.max_solve_s), "fallback": res.fallback}
         return StepResult(np.asarray(cmd, dtype=float), [msg], telemetry)
 

@@ -1282,7 +1282,15 @@ class SafetyGuard:
         since = max(now - back, 0.0) + self._dt
         if since > self._config.max_age_s:
             return None
-        return Neighbour(centre, since, nb.radius + reach, nb.speed_max, nb.speed_max * since, nb.lookahead)
+        # where it may be: the held disc's reach (it stopped somewhere in it) plus what it can
+        # have driven since; with a_max it was held at rest or braking (at most v_hold) and
+        # speeds up at a_max only. The reach is the disc's spread, not its footprint: a robot
+        # already near the disc keeps from closing in on it in every direction it may lie in
+        # (the stale-direction rows), not only on its centre (docs/reference/safety.md, "A lost robot")
+        moved = nb.speed_max * since
+        if a_max is not None:
+            moved = min(moved, v_hold * since + 0.5 * a_max * since**2)
+        return Neighbour(centre, since, nb.radius, nb.speed_max, reach + moved, nb.lookahead)
 
     def _note_lost(self, lost, now: float, silent=()) -> None:
         """Remember when this robot first knew each robot lost; a robot is held until it is back

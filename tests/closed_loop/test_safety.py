@@ -286,18 +286,53 @@ def test_a_lost_robot_held_still_is_a_static_disc_passed_and_not_forgotten():
             (nb,) = guard.neighbours(k * dt)  # 2.2 s after its last message: still there, at rest
             assert nb.committed == (0.0, 0.0, 0.0, 0.0)
             assert np.hypot(*(np.asarray(nb.position) - b_held)) + r < nb.radius  # it holds b's disc
+            held = nb
     gaps = np.array(gaps)
     assert gaps.min() >= 2 * r + 0.01  # the footprints and the margin
     # it really passed close: the held disc is b's footprint grown by half the 0.08 m it may
     # have driven on (0.2 s at 0.4 m/s) and the extrapolation's 0.09 m spread at 0.2 s
     assert gaps.min() < 2 * r + 0.01 + 0.04 + 0.09 + 0.02
     assert pose[0] > b_held[0] + 0.2 and gaps[-1] > gaps.min() + 0.1  # and went on past it
-    # back (a restarted process) but not heard yet: b may drive again, a disc growing at its speed bound
+    # back (a restarted process) but not heard yet: b may drive again, the held disc growing at
+    # its speed bound; where in it b stopped is the disc's spread (its directions are unknown)
     guard.apply(pose, nominal, 9.1, lost=frozenset())
     (nb,) = guard.neighbours(9.3)
-    assert nb.committed is None and nb.spread == pytest.approx(nb.speed_max * (0.2 + dt))
+    assert nb.committed is None and not nb.held and nb.radius == model.radius
+    assert nb.position == pytest.approx(held.position)
+    assert nb.spread == pytest.approx(held.radius - r + nb.speed_max * (0.2 + dt))
     # heard with a new stamp: an ordinary neighbour again
     guard.hear("b", (0.5, 0.0), 9.2, (0.0, 0.0, 0.0))
     guard.apply(pose, nominal, 9.3, lost=frozenset())
     (nb,) = guard.neighbours(9.3)
     assert nb.position == pytest.approx((0.5, 0.0)) and nb.radius == model.radius
+
+
+def test_a_robot_back_from_a_hold_grows_from_rest_at_its_acceleration_limit():
+    """A restarted robot with an enforced ``a_max`` was held at zero command (braking from at
+    most v_hold inside its held disc): once back it can be within v_hold t + a_max t^2 / 2 of
+    that disc after t, not its speed bound times t (docs/reference/safety.md, "A lost robot"),
+    so the disc a neighbour keeps off does not jump at the return (DMPC triangle, realtime chaos
+    soak: 0.388 m against 0.40 m of footprints 0.07 s after a restart)."""
+    from copath.models import OmniModel
+    from copath.safety import GuardConfig, SafetyConfig, SafetyGuard
+
+    dt = 0.05
+    model = OmniModel(a_max=1.0, alpha_max=3.0)  # E5.2's robots
+    guard = SafetyGuard(GuardConfig(safety=SafetyConfig(enabled=True), name="a", models={"a": model, "b": model},
+                                    dt=dt))
+    for k in range(21):  # b at 0.4 m/s along x up to t = 1 s, then killed
+        guard.hear("b", (0.4 * k * dt, 0.0), k * dt, (0.4, 0.0, 0.0))
+    pose = np.array([0.0, 1.0, 0.0])
+    guard.apply(pose, [0.0, 0.0, 0.0], 1.05, lost=frozenset({"b"}))
+    (held,) = guard.neighbours(1.05)
+    assert held.held and held.spread == 0.0
+    guard.apply(pose, [0.0, 0.0, 0.0], 2.0, lost=frozenset())  # its token is back at 2 s
+    for since in (0.0, 0.1, 0.5):
+        (nb,) = guard.neighbours(2.0 + since)
+        # its speed at the hold: the sent 0.4 m/s plus a_max over the hold's age (0.1 s) and a period
+        v_hold = min(nb.speed_max, 0.4 + model.a_max * (0.1 + dt))
+        t = since + dt
+        moved = min(nb.speed_max * t, v_hold * t + 0.5 * model.a_max * t**2)
+        assert nb.position == pytest.approx(held.position) and nb.radius == model.radius
+        assert nb.spread == pytest.approx(held.radius - model.radius + moved)
+        assert nb.spread < held.radius - model.radius + nb.speed_max * t  # tighter than its speed bound

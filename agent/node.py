@@ -157,6 +157,7 @@ class AgentNode:
             self._cpu_at_start = cpu.user + cpu.system
             self.wall_t0 = rec.wall_t0
             self.joined_late = rec.wall_t0 < self.process_start - 0.5
+            self.rt.joined = self.joined_late
             self.started.set()
             logger.info("synchronised on the start record: run time %.2f s%s, %.2f s after the process started",
                         time.time() - rec.wall_t0, " (joining a run in progress)" if self.joined_late else "",
@@ -318,6 +319,7 @@ class AgentNode:
             # while it was away or starting are gone, so the barrier's counts cannot be met;
             # it steps on what has arrived (the run is no longer deterministic anyway)
             self._barrier = False
+            self.rt.joined = True
             logger.info("joined at tick %d: stepping without the lockstep barrier", obs.k)
         if not self._barrier:
             self._drain_peers()

@@ -133,6 +133,9 @@ class RobotRuntime:
         self.neighbours = spec.neighbours if scenario.network.range_m == 0 else None
         """The robots it listens to (None: every robot, a range-limited graph)."""
         self.counters = Counters()
+        self.joined = False
+        """This process joined a run in progress (a restart; set by the node): the controllers'
+        ``Observation.joined``."""
         self.received_from: dict[str, int] = {}
         """Peer envelopes that arrived from each sender, refused ones included (the lockstep barrier)."""
         self.cut_off_rule = CutOffRule.for_robot(scenario, name, handles_cut_off)
@@ -304,7 +307,7 @@ class RobotRuntime:
         seen, detour_offset = self.detour.step(now, pose, ranges, self._angles, released.messages, events,  # detour
                                                held, self.liveness, self.safety)
         observation = Observation(t=now, pose=seen, dt=self.dt, ranges=ranges, sensor_angles=self._angles,
-                                  sensor_max_range=self._max_range, lost=alive.lost)
+                                  sensor_max_range=self._max_range, lost=alive.lost, joined=self.joined)
         res = self.control.step(observation, released.messages, obs.k, now)  # control
         telemetry = res.telemetry
         cmd = self.hold.apply(alive.cut_off, res.command, telemetry)  # hold

@@ -68,6 +68,10 @@ class Observation:
     """Robots known to be gone: their liveliness token disappeared (process dead or frozen),
     or this robot has heard nothing from them for the lease (a radio gone quiet, until heard
     again). A controller drops them from its graph (``run.on_robot_failure``)."""
+    joined: bool = False
+    """This robot's process joined a run in progress (a restart, ``run.on_robot_failure =
+    "restart"``): a controller that starts a coordination state may take it from its
+    neighbours' messages instead of its own start (docs/reference/faults.md, "Restart")."""
 
 
 @dataclass(frozen=True)

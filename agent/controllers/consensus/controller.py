@@ -209,6 +209,8 @@ class ConsensusController:
         self.s: float | None = cfg.s0
         self.sdot = cfg.v0
         self.inbox = LatestMessages(kinds=(MESSAGE_KIND,))
+        self._rejoin_until: float | None = None
+        """A restarted process: until when it looks for its neighbours' progress (:meth:`_rejoin`)."""
 
     def _neighbour_states(self, t: float, xi: float) -> list[NeighbourState]:
         return neighbour_states(self.inbox.fresh(MESSAGE_KIND, t, self.cfg.stale_after_s).values(), t, xi,
@@ -216,11 +218,31 @@ class ConsensusController:
                                 self.path.length if self.path.closed else 0.0, self.cfg.age_nominal_s,
                                 self.cfg.predict_acceleration)
 
+    def _rejoin(self, t: float) -> bool:
+        """A restarted process (``Observation.joined``): its virtual vehicle starts from its
+        neighbours' progress, xi_i = mean_j xi_j (the consensus value (5.42) drives it to) and
+        their mean speed, not from its own projection, which lags by what it lost while it was
+        held still. Started there, the whole team was pulled back to it by the consensus terms
+        (E5.4, r5 killed for 1 s: 0.3 m behind, the team re-coordinated in 27 s); now its own
+        tracking law (5.39) closes the gap (docs/reference/faults.md, "Restart"). Its first step
+        may come before any neighbour message (in one process a new node hears only what is
+        sent after it started): it starts from its projection and moves to its neighbours'
+        progress at the first step that has one, within ``stale_after_s``. True once done."""
+        xi = self.s - self.cfg.s_d
+        states = self._neighbour_states(t, xi)
+        if states:
+            self.s = float(np.mean([n.xi for n in states])) + self.cfg.s_d
+            self.sdot = min(max(float(np.mean([n.sdot for n in states])), 0.0), self.cfg.sdot_max)
+        return bool(states)
+
     def step(self, obs: Observation, inbox: Sequence[PeerMessage]) -> StepResult:
         cfg = self.cfg
         self.inbox.update(inbox, obs.t, obs.lost)  # a lost robot leaves the graph at once
         if self.s is None:
             self.s = self.path.project(obs.pose[:2])
+            self._rejoin_until = obs.t + cfg.stale_after_s if obs.joined else None
+        if self._rejoin_until is not None and (self._rejoin(obs.t) or obs.t >= self._rejoin_until):
+            self._rejoin_until = None
         s, sdot = self.s, self.sdot
         x_d, y_d, th_d, kappa = self.path.frame(s)
         errors = tracking_errors(obs.pose, (x_d, y_d, th_d))

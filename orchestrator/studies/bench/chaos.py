@@ -321,8 +321,14 @@ def grade(records, scenario: Scenario, run_id: str, faults: list[Fault], metrics
             continue
         row["t_sim"] = round(t_f, 2)
         if coord is None:
-            row["recoord_s"] = None
+            row["recoord_s"] = row["coord_before_m"] = None
             continue
+        # the team at the fault: the largest live error over the second before it (a fault
+        # that hits a team not yet coordinated, in the scenario's own transient or before an
+        # earlier fault's error is absorbed, is not what put the error there)
+        before = coord[(t >= t_f - 1.0 - 1e-9) & (t < t_f - 1e-9)]
+        before = before[np.isfinite(before)]
+        row["coord_before_m"] = round(float(before.max()), 4) if len(before) else None
         ok = np.nonzero((t >= t_back - 1e-9) & (coord < COORD_TOL_M))[0]
         row["recoord_s"] = round(float(t[ok[0]] - t_back), 2) if len(ok) else None
     fleet = metrics.get("fleet", {})
@@ -347,12 +353,22 @@ def grade(records, scenario: Scenario, run_id: str, faults: list[Fault], metrics
         "recoord_max_s": max((r["recoord_s"] for r in rows if r.get("recoord_s") is not None), default=None),
         "recoord_over_20s_or_never": sum(1 for r in rows if r.get("t_sim") is not None
                                          and (r.get("recoord_s") is None or r["recoord_s"] > 20.0)),
+        "faults_on_a_settled_team": sum(1 for r in rows if _settled(r)),
+        "recoord_over_20s_or_never_settled": sum(1 for r in rows if _settled(r)
+                                                 and (r.get("recoord_s") is None or r["recoord_s"] > 20.0)),
         "outage_open": never,
         "deadline_miss_rate": fleet.get("deadline_miss_rate"),
         "ok": metrics.get("ok"),
         "failure": metrics.get("failure"),
     }
     return {"faults": rows, "totals": totals}
+
+
+def _settled(row: dict) -> bool:
+    """The fault hit a coordinated team: its live robots' error below :data:`COORD_TOL_M` over
+    the second before it (docs/reference/faults.md, "Chaos soak")."""
+    c = row.get("coord_before_m")
+    return row.get("t_sim") is not None and c is not None and c < COORD_TOL_M
 
 
 # -- the soak ----------------------------------------------------------------------------
@@ -477,7 +493,7 @@ def regrade(out: pathlib.Path, result: dict) -> dict:
 def print_table(title: str, result: dict, file=sys.stdout) -> None:
     print(f"\n{title}", file=file)
     print(f"{'t':>7} {'t_sim':>7} {'kind':<9} {'robot':<7} {'hold':>5} {'detect':>7} {'back':>7} {'restart>cmd':>11} "
-          f"{'coll':>4} {'recoord':>7} {'vsep':>6}  note", file=file)
+          f"{'coll':>4} {'recoord':>7} {'before':>6} {'vsep':>6}  note", file=file)
 
     def fmt(v, w, p=2):
         return f"{'-':>{w}}" if v is None else f"{v:>{w}.{p}f}" if isinstance(v, float) else f"{v:>{w}}"
@@ -485,7 +501,8 @@ def print_table(title: str, result: dict, file=sys.stdout) -> None:
     for r in result["faults"]:
         print(f"{r['t']:>7.1f} {fmt(r.get('t_sim'), 7, 1)} {r['kind']:<9} {r['robot']:<7} {r['hold_s']:>5.1f} "
               f"{fmt(r.get('detect_s'), 7)} {fmt(r.get('back_s'), 7)} {fmt(r.get('restart_to_cmd_s'), 11)} "
-              f"{fmt(r.get('collisions'), 4)} {fmt(r.get('recoord_s'), 7, 1)} {fmt(r.get('victim_min_sep_m'), 6, 3)}"
+              f"{fmt(r.get('collisions'), 4)} {fmt(r.get('recoord_s'), 7, 1)} {fmt(r.get('coord_before_m'), 6, 3)} "
+              f"{fmt(r.get('victim_min_sep_m'), 6, 3)}"
               f"  {r.get('note', '')}", file=file)
     print("totals: " + ", ".join(f"{k}={v}" for k, v in result["totals"].items()), file=file)
 

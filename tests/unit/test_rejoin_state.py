@@ -53,29 +53,6 @@ def test_without_neighbour_messages_a_restarted_robot_keeps_its_projection():
     assert res.telemetry["xi"] == pytest.approx(2.7, abs=1e-6)
 
 
-@pytest.mark.parametrize("joined", [False, True])
-def test_a_restarted_dmpc_robot_starts_its_reference_from_its_neighbours_plans(joined):
-    """Sec. 5.4: r1 (psi_d 0) and r2 (psi_d -0.4); r2 announces s_hat = 0.8 m now, so r1's slot is
-    at 1.2 m; r1 stands at 1.0 m after its outage."""
-    import math  # noqa: PLC0415
-
-    from agent.controllers.dmpc import build as build_dmpc  # noqa: PLC0415
-    from copath.models import OmniModel  # noqa: PLC0415
-    from copath.paths import ellipse  # noqa: PLC0415
-
-    path = ellipse(1.5, 1.0, rotation=math.pi / 6)
-    ctx = RobotContext(name="r1", index=0, model=OmniModel(), paths={"main": path}, path="main", neighbours=("r2",),
-                       robots=("r1", "r2"), dt=0.05, params={"formation": {"r1": 0.0, "r2": -0.4}, "q": 0.0})
-    ctl = build_dmpc(ctx)
-    t = 30.0
-    x, y = np.asarray(path.pos(1.0), float).reshape(-1)[:2]
-    pose = np.array([x, y, float(path.frame(1.0)[2])])
-    nb = PeerMessage("r2", "assumed_traj", t - 0.05, 0.05,
-                     {"t0": t - 0.05, "dt": 0.05, "s_hat": [0.78 + 0.02 * k for k in range(12)], "psi_scale": 1.0})
-    res = ctl.step(Observation(t=t, pose=pose, dt=0.05, joined=joined), [nb])
-    assert res.telemetry["s"] == pytest.approx(1.2 if joined else 1.0, abs=1e-6)
-
-
 def test_a_restarted_robot_that_hears_its_neighbours_one_step_late_moves_to_them_then():
     """In one process a new node hears only what is sent after it started: its first step has
     no neighbour message, its second does."""

@@ -281,7 +281,6 @@ class DMPCController:
         self.inbox = LatestMessages(kinds=(MESSAGE_KIND,), senders=self.nbrs, decode=self._decode)
         self.own_assumed: AssumedTrajectory | None = None
         self._last: tuple[float, np.ndarray] | None = None  # (t_k, predicted X) of the last solve
-        self._rejoin_until: float | None = None  # a restarted process: until when it looks for its neighbours (_rejoin)
         self.k = 0
 
     # -- helpers ---------------------------------------------------------------------
@@ -328,31 +327,6 @@ class DMPCController:
         self.theta_t = float(geo[2, 0] + x_b[IPHI])
         self.u_R = float(x_b[IETA] + self._u_r(float(geo[3, 0])))
 
-    def _rejoin(self, t: float) -> bool:
-        """A restarted process (``Observation.joined``): its reference point starts from its
-        neighbours' announced progress, psi_j(t) - p_ij averaged (where the coupling term of
-        (5.17) would take it), not from its own projection, which lags by what it lost while it
-        was held still; its tracking terms then close the gap (docs/reference/faults.md,
-        "Restart"). Its first step may come before any neighbour message: it starts from its
-        projection and moves at the first step that has one, within ``stale_after_s``, its own
-        plan forgotten (the compatibility constraint (5.18) binds to the plan announced). True
-        once done."""
-        own = self.morph.psi(self.s)
-        targets = []
-        for name in self.nbrs:
-            got = self.inbox.get(name, MESSAGE_KIND)
-            if got is None or t - got.stamp > self.cfg.stale_after_s:
-                continue
-            p_ij = self.cfg.offset(name) - self.psi_d
-            targets.append(float(self._wrap_near(np.array([float(got.value.at(t)) - p_ij]), np.array([own]))[0]))
-        if not targets:
-            return False
-        self.s = float(self.morph.s(float(np.mean(targets))))
-        self.own_assumed = None
-        self._last = None
-        self.mpc.reset()
-        return True
-
     # -- step ------------------------------------------------------------------------
     def step(self, obs: Observation, inbox: Sequence[PeerMessage]) -> StepResult:
         cfg, N, dt = self.cfg, self.cfg.horizon, self.dt
@@ -360,13 +334,10 @@ class DMPCController:
         pose = np.asarray(obs.pose, dtype=float)
         if self.s is None:
             self.s = self.path.project(pose[:2])
-            self._rejoin_until = obs.t + cfg.stale_after_s if obs.joined else None
         if self.theta_t is None:
             self.theta_t = float(self.table(self.s)[2, 0])
         if self._last is not None:
             self._advance(obs.t - self._last[0], self._last[1])
-        if self._rejoin_until is not None and (self._rejoin(obs.t) or obs.t >= self._rejoin_until):
-            self._rejoin_until = None
         s = self.s
         # guess of s along the horizon: previous plan shifted, else nominal progress
         prev = self.mpc.shifted_plan()

@@ -302,20 +302,26 @@ class _PlanTubes:
     sixty numpy calls on arrays of 25 plans it replaces (docs/journal/performance.md, safety
     filter second pass (P19))."""
 
-    __slots__ = ("rows", "normals", "inside", "_set")
+    __slots__ = ("normals", "inside", "_plans", "_now", "_cfg", "_rows", "_set")
 
     def __init__(self, plans, now: float, cfg: SafetyConfig, filt: "SafetyFilter | None" = None,
                  x: float = 0.0, y: float = 0.0) -> None:
+        self._plans, self._now, self._cfg = list(plans), now, cfg
+        self._rows = None
+        self._set = None
+        if filt is None:
+            self.normals, self.inside = [], False
+            return
         r0, cs, ca, half_a = cfg.commit_radius_m, cfg.commit_speed_mps, cfg.commit_accel_mps2, 0.5 * cfg.commit_accel_mps2
         sin, cos, sqrt = math.sin, math.cos, math.sqrt
-        probe = filt is not None
-        if probe:
-            gamma = filt.gamma
-            a_max = filt.model.a_max if filt.config.braking else None
-            a_dt = 0.5 * a_max * filt.dt if a_max is not None else 0.0
-            a_dt2 = a_dt**2
-        rows, normals = [], []
+        gamma = filt.gamma
+        a_max = filt.model.a_max if filt.config.braking else None
+        a_dt = 0.5 * a_max * filt.dt if a_max is not None else 0.0
+        a_dt2 = a_dt**2
+        normals = []
+        append = normals.append
         inside = True
+        # the operations of :meth:`_tube_rows`, per plan, followed by the pass-through test's terms
         for stamp, px, py, vx, vy, w, speed, ch, sh in plans:
             tau = now - stamp
             t = tau if tau >= 0.0 else 0.0
@@ -334,29 +340,57 @@ class _PlanTubes:
                 sa, cas = sin(w * tau), cos(w * tau)
             cvx, cvy = cas * vx - sa * vy, sa * vx + cas * vy
             radius = r0 + cs * t + half_a * (t * t) - TUBE_MARGIN_M
-            growth = cs + ca * tau
-            rows.append((cx, cy, cvx, cvy, radius, growth))
-            if probe:
-                dx, dy = x - cx, y - cy
-                dist = sqrt(dx * dx + dy * dy)
-                g = radius - dist
-                if g + TUBE_MARGIN_M < CLEAR_MARGIN:
-                    inside = False
-                inv = dist if dist > 1e-9 else 1e-9
-                mx, my = dx / inv, dy / inv
-                rate = gamma * g
-                if a_max is not None and g > 0:
-                    stop = sqrt(a_dt2 + a_max * g) - a_dt
-                    if stop < rate:
-                        rate = stop
-                normals.append((mx, my, mx * cvx + my * cvy + growth + rate - CLEAR_MARGIN))
-        self.rows = rows
+            dx, dy = x - cx, y - cy
+            dist = sqrt(dx * dx + dy * dy)
+            g = radius - dist
+            if g + TUBE_MARGIN_M < CLEAR_MARGIN:
+                inside = False
+            inv = dist if dist > 1e-9 else 1e-9
+            mx, my = dx / inv, dy / inv
+            rate = gamma * g
+            if a_max is not None and g > 0:
+                stop = sqrt(a_dt2 + a_max * g) - a_dt
+                if stop < rate:
+                    rate = stop
+            append((mx, my, mx * cvx + my * cvy + (cs + ca * tau) + rate - CLEAR_MARGIN))
         self.normals = normals
-        self.inside = inside and probe
-        self._set = None
+        self.inside = inside
 
     def __len__(self) -> int:
-        return len(self.rows)
+        return len(self._plans)
+
+    @property
+    def rows(self) -> list[tuple[float, float, float, float, float, float]]:
+        """Per plan (centre x, y, velocity x, y, radius less ``TUBE_MARGIN_M``, growth), computed
+        when first asked for (the pass-through test needs only :attr:`normals`)."""
+        if self._rows is None:
+            self._rows = self._tube_rows()
+        return self._rows
+
+    def _tube_rows(self) -> list[tuple[float, float, float, float, float, float]]:
+        cfg, now = self._cfg, self._now
+        r0, cs, ca, half_a = cfg.commit_radius_m, cfg.commit_speed_mps, cfg.commit_accel_mps2, 0.5 * cfg.commit_accel_mps2
+        sin, cos = math.sin, math.cos
+        rows = []
+        for stamp, px, py, vx, vy, w, speed, ch, sh in self._plans:
+            tau = now - stamp
+            t = tau if tau >= 0.0 else 0.0
+            a = w * t
+            sa, cas = sin(a), cos(a)
+            if speed < 1e-12:
+                cx, cy = px, py
+            else:
+                if abs(a) < 1e-9:
+                    dx_b, dy_b = speed * t, 0.0 * t
+                else:
+                    dx_b = (speed * sa) / w
+                    dy_b = (speed * (1.0 - cas)) / w
+                cx, cy = px + ch * dx_b - sh * dy_b, py + sh * dx_b + ch * dy_b
+            if t is not tau:  # a plan stamped after now: its velocity turned by w tau, its arc at tau = 0
+                sa, cas = sin(w * tau), cos(w * tau)
+            rows.append((cx, cy, cas * vx - sa * vy, sa * vx + cas * vy, r0 + cs * t + half_a * (t * t) - TUBE_MARGIN_M,
+                         cs + ca * tau))
+        return rows
 
     def arrays(self) -> TubeSet:
         """The tubes as a :class:`TubeSet` (the same numbers)."""

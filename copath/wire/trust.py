@@ -151,6 +151,8 @@ class RejectLog:
     def event(self, source: str, t: float, wall: float) -> Event | None:
         """A ``messages_rejected`` event when something new was rejected and ``min_interval_s``
         of wall time ``wall`` has passed since the previous one; else None."""
+        if self.total == self._reported:  # nothing new (asked once per step: no lock for that)
+            return None
         with self._lock:
             if self.total == self._reported:
                 return None

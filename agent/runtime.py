@@ -310,7 +310,7 @@ class RobotRuntime:
                                   sensor_max_range=self._max_range, lost=alive.lost, joined=self.joined)
         res = self.control.step(observation, released.messages, obs.k, now)  # control
         telemetry = res.telemetry
-        cmd = self.hold.apply(alive.cut_off, res.command, telemetry)  # hold
+        cmd = self.hold.apply(alive.cut_off, self.detour.command(res.command), telemetry)  # hold
         if detour_offset:
             telemetry["detour_offset"] = detour_offset
         if self.safety is not None:  # safety

@@ -38,11 +38,14 @@ class DetourStage:
         self._lease = float(scenario.run.lease_s)
         self._held_at: float | None = None
         """The last instant the runtime held this robot still (cut off) [s]."""
+        self._mapped = False
+        """Whether the planner ran at this step (its command map applies)."""
 
     def step(self, now: float, pose: np.ndarray, ranges, angles, inbox: list[PeerMessage], events: list[Event],
              held: bool, liveness: LivenessStage, safety: SafetyStage | None) -> tuple[np.ndarray, float]:
         """The pose the controller sees and the lane's shift; the stage's events are appended
         to ``events``. A robot the runtime holds still (cut off) plans nothing."""
+        self._mapped = False
         if self.planner is None or held:
             self._held_at = now
             return pose, 0.0
@@ -70,5 +73,11 @@ class DetourStage:
                 spread = min(0.5 * max(now - stamp, 0.0), 0.5)
                 peers.append((x, y, self._radii.get(r, 0.0) + spread, r in liveness.lost and not deaf))
         out = planner.step(now, pose, ranges, angles, peers)
+        self._mapped = True
         events += [Event(float(now), self.robot, what, detail) for what, detail in out.events]
         return out.pose, out.offset
+
+    def command(self, cmd):
+        """The controller's command mapped onto the shifted lane (:meth:`DetourPlanner.command`;
+        the same object while no lane is shifted)."""
+        return self.planner.command(cmd) if self._mapped else cmd

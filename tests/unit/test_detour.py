@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from copath.detour import DetourConfig, DetourPlanner, bump, plan_shift, polygon_disc, ray_discs
-from copath.paths import line
+from copath.paths import circle, line
 
 DT = 0.1
 R = 0.06  # a c't-Bot's footprint
@@ -173,3 +173,36 @@ def test_head_on_stall_both_keep_right_and_pass():
     assert len(starts) == 2 and all(d["reason"] == "stalled" and d["side"] == "right" for d in starts)
     assert min(offs_a) < 0 < max(offs_b)  # a (going +x) passes below, b (going -x) above
     assert pa[0] > 0.3 and pb[0] < 0.0  # they passed each other
+
+
+def test_command_is_stretched_with_the_lane_round_a_bend():
+    """On the outside of a bend the shifted lane is longer than the path: an omni robot's speed
+    along the path is scaled by the ratio (1 - kappa (q + d)) / (1 - kappa q), so its path
+    coordinate advances at the rate the controller set; a unicycle's command is left as it is
+    (docs/reference/detours.md, "The method")."""
+    path = circle(1.0)  # counter-clockwise: the left normal points to the centre, kappa = 1
+    # a held disc just inside the path a quarter turn ahead: the outside (the robot's right) is nearer
+    peers = [(0.0, 0.93, 0.2, True)]
+    for unicycle in (False, True):
+        planner = DetourPlanner(path, R, unicycle, DT)
+        plateau, shifted, d = [], 0, 0.0
+        for k in range(int(12.0 / DT)):
+            x, y, th, _ = path.frame(0.2 * k * DT)
+            pose = np.array([x - d * math.sin(th), y + d * math.cos(th), th])  # on the shifted lane
+            step = planner.step(k * DT, pose, peers=peers)
+            d = step.offset
+            cmd = np.array([0.2, 0.0]) if unicycle else np.array([0.2, 0.0, 0.2])
+            out = planner.command(cmd)
+            if step.offset == 0.0 or unicycle:
+                assert out is cmd  # no shift, or a unicycle: the command is untouched
+                shifted += step.offset != 0.0
+            elif abs(planner.plan.slope(planner.s)) < 1e-9:
+                plateau.append((step.offset, out))
+        if unicycle:
+            assert shifted > 0  # it did detour
+            continue
+        assert plateau, "the detour has a plateau alongside the disc"
+        for d, out in plateau:
+            assert d < 0.0  # the outside, the robot's right
+            assert out[0] == pytest.approx(0.2 * (1.0 - d), rel=1e-9)
+            assert out[1] == pytest.approx(0.0, abs=1e-9) and out[2] == 0.2  # turn rate untouched

@@ -70,6 +70,10 @@ class LivenessStage:
         is when they were last heard."""
         self._overheard_at: dict[str, float] = {}
         """When an overheard envelope of each sender was last delivered to the filter."""
+        self._returned: dict[str, float] = {}
+        """When each robot's liveliness token came back (a restarted or resumed process): until
+        it is heard again, for a lease at most, it is not quiet for the filter
+        (:meth:`quiet_for_filter`)."""
 
     def peer_alive(self, name: str, alive: bool) -> None:
         """A robot's liveliness changed (its process died or froze, or it came back)."""
@@ -101,9 +105,24 @@ class LivenessStage:
         envelope (to anyone) has been missing for the lease (a follower that only talks to the
         leader is heard by the others' filters, not by their controllers); else the silent ones."""
         if not self.overhearing:
-            return frozenset(self._silent)
-        return frozenset(s for s, t in self._overheard_at.items()
-                         if s not in self.lost and now - t > self.silent_after_s + 1e-9)
+            quiet = frozenset(self._silent)
+        else:
+            quiet = frozenset(s for s, t in self._overheard_at.items()
+                              if s not in self.lost and now - t > self.silent_after_s + 1e-9)
+        if not self._returned or not quiet:
+            return quiet
+        # a robot whose token came back after it was last heard is a process that drives
+        # again (restarted, or resumed), not a radio gone quiet that holds itself still: the
+        # filter keeps it as a robot back from a hold (docs/reference/safety.md, "A lost
+        # robot"), and the detour stage does not go round it (in an E5.4 soak, r5 and r6 began
+        # 0.79 m detours round r4 in the tick its restarted process rejoined, and the column
+        # fell 0.55 m out of coordination; docs/journal/faults.md, "First instant or for good")
+        # (for a lease: one that has not spoken by then is quiet again, and holds itself by
+        # the cut-off rule)
+        lease = self.silent_after_s + 1e-9
+        return frozenset(s for s in quiet if not (
+            now - self._returned.get(s, -math.inf) <= lease
+            and self._returned[s] > max(self._heard.get(s, -math.inf), self._overheard_at.get(s, -math.inf))))
 
     def _is_cut_off(self, now: float) -> bool:
         """Every robot this robot has heard is lost, at least one by silence (docs/reference/faults.md,
@@ -138,6 +157,7 @@ class LivenessStage:
             return []  # no token changed, nobody silent, and nobody is yet (the common step)
         events = [Event(float(now), self.robot, "peer_lost", {"robot": r}) for r in sorted(lost - told)]
         events += [Event(float(now), self.robot, "peer_rejoined", {"robot": r}) for r in sorted(told - lost)]
+        self._returned.update(dict.fromkeys(told - lost, float(now)))
         for s, t in sorted(self._heard.items()):
             if s in self.lost:  # its token went: lost already, whatever it says
                 continue

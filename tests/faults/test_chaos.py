@@ -41,6 +41,7 @@ def _assert_goals(res: dict, target: float, restart_bound_s: float | None) -> No
             assert r["restart_to_cmd_s"] is not None and r["restart_to_cmd_s"] < restart_bound_s, r
         assert r["collisions"] == 0, r
         assert r["recoord_s"] is not None and r["recoord_s"] < COORD_WITHIN_S, r
+        assert r["recoord_held_s"] is not None and r["recoord_held_s"] < COORD_WITHIN_S, r  # and stays
     assert tot["collisions"] == 0
     assert tot["min_separation_m"] >= target
     assert tot["outage_open"] == [] and tot["ok"] is True, tot

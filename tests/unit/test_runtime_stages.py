@@ -262,3 +262,37 @@ def test_a_restarted_robot_sees_in_its_first_step_who_it_overheard_before_it():
     assert rt.counters.extra["overheard"] == 2 and rt.reject_log.total == 0
     seen = [nb.position for nb in rt.safety.guard.neighbours(5.0)]
     assert len(seen) == 2 and all(np.allclose(p, q) for p, q in zip(sorted(seen), sorted([r1[:2], scen.robot("r2").pose[:2]])))
+
+
+def test_a_robot_whose_token_came_back_is_not_quiet_for_the_filter_until_the_lease_ends():
+    # a restarted process is not yet heard when its token comes back: for the filter and the
+    # detour stage it drives again (a robot back from a hold), not a radio gone quiet that holds
+    # itself still (docs/journal/faults.md, "First instant or for good")
+    scen = _e55()
+    lease = scen.run.lease_s
+    for overhearing in (False, True):
+        live = LivenessStage(scen, "r3", CutOffRule.for_robot(scen, "r3", _handles()), overhearing=overhearing)
+        live.heard(["r1", "r2"], 1.0)
+        live.overheard_all(["r1", "r2"], 1.0)
+        live.peer_alive("r2", False)  # its process froze at 1.0 and was killed
+        t_lost = 1.0 + lease + 0.05
+        live.heard(["r1"], t_lost)
+        live.overheard_all(["r1"], t_lost)
+        live.update(t_lost, live.lost)
+        assert live.quiet_for_filter(t_lost) == frozenset()  # lost, not quiet
+        live.peer_alive("r2", True)  # restarted: its token is back, no message yet
+        t_back = t_lost + 0.1
+        live.heard(["r1"], t_back)
+        live.overheard_all(["r1"], t_back)
+        out = live.update(t_back, live.lost)
+        assert [e.what for e in out.events if e.what.startswith("peer_")][0] == "peer_rejoined"
+        assert live.quiet_for_filter(t_back) == frozenset(), overhearing
+        t_late = t_back + lease + 0.1  # a lease after its return and still not heard: quiet again
+        live.heard(["r1"], t_late)
+        live.overheard_all(["r1"], t_late)
+        live.update(t_late, live.lost)
+        assert live.quiet_for_filter(t_late) == {"r2"}, overhearing
+        live.heard(["r2"], t_late + 0.1)
+        live.overheard_all(["r2"], t_late + 0.1)
+        live.update(t_late + 0.1, live.lost)
+        assert live.quiet_for_filter(t_late + 0.1) == frozenset()

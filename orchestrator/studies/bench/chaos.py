@@ -60,6 +60,11 @@ KINDS = ("kill", "stop", "stall", "silence", "partition")
 PROCESS_KINDS = ("kill", "stop", "stall")
 COORD_TOL_M = 0.05
 """Re-coordinated: the live robots' coordination error below this [m] (the issue's goal)."""
+HOLD_S = 5.0
+"""Re-coordinated for good (``recoord_held_s``): the error stays below :data:`COORD_TOL_M` this
+long [s] (chosen: a third of the schedule's mean gap between faults; an error that builds up
+after the fault's end, as a column slowing behind a restarted robot, is not hidden by a first
+instant below the tolerance; docs/journal/faults.md, "First instant or for good")."""
 
 
 @dataclass
@@ -331,6 +336,7 @@ def grade(records, scenario: Scenario, run_id: str, faults: list[Fault], metrics
         row["coord_before_m"] = round(float(before.max()), 4) if len(before) else None
         ok = np.nonzero((t >= t_back - 1e-9) & (coord < COORD_TOL_M))[0]
         row["recoord_s"] = round(float(t[ok[0]] - t_back), 2) if len(ok) else None
+        row["recoord_held_s"] = _held_below(t, coord, t_back)
     fleet = metrics.get("fleet", {})
     target = (scenario.raw.get("targets") or {}).get("min_separation_m")
     restarts = [r["restart_to_cmd_s"] for r in rows if r.get("restart_to_cmd_s") is not None]
@@ -356,12 +362,31 @@ def grade(records, scenario: Scenario, run_id: str, faults: list[Fault], metrics
         "faults_on_a_settled_team": sum(1 for r in rows if _settled(r)),
         "recoord_over_20s_or_never_settled": sum(1 for r in rows if _settled(r)
                                                  and (r.get("recoord_s") is None or r["recoord_s"] > 20.0)),
+        "recoord_held_over_20s_or_never": sum(1 for r in rows if r.get("t_sim") is not None
+                                              and (r.get("recoord_held_s") is None or r["recoord_held_s"] > 20.0)),
+        "recoord_held_over_20s_or_never_settled": sum(1 for r in rows if _settled(r) and (
+            r.get("recoord_held_s") is None or r["recoord_held_s"] > 20.0)),
         "outage_open": never,
         "deadline_miss_rate": fleet.get("deadline_miss_rate"),
         "ok": metrics.get("ok"),
         "failure": metrics.get("failure"),
     }
     return {"faults": rows, "totals": totals}
+
+
+def _held_below(t: np.ndarray, coord: np.ndarray, t_back: float) -> float | None:
+    """Seconds from ``t_back`` to the first instant from which the coordination error stays
+    below :data:`COORD_TOL_M` for :data:`HOLD_S` (or to the run's end, if that comes first);
+    None if never. NaN (no live pair) counts as below."""
+    below = ~(coord >= COORD_TOL_M)  # NaN: no pair to grade
+    k = int(np.searchsorted(t, t_back - 1e-9))
+    bad = np.nonzero(~below[k:])[0] + k  # the instants at or over the tolerance from t_back on
+    start = k  # each stretch below begins at t_back or just after an instant over
+    for b in (*bad.tolist(), len(t)):
+        if b > start and (b == len(t) or t[b] - t[start] >= HOLD_S - 1e-9):
+            return round(float(t[start] - t_back), 2)
+        start = b + 1
+    return None
 
 
 def _settled(row: dict) -> bool:
@@ -493,7 +518,7 @@ def regrade(out: pathlib.Path, result: dict) -> dict:
 def print_table(title: str, result: dict, file=sys.stdout) -> None:
     print(f"\n{title}", file=file)
     print(f"{'t':>7} {'t_sim':>7} {'kind':<9} {'robot':<7} {'hold':>5} {'detect':>7} {'back':>7} {'restart>cmd':>11} "
-          f"{'coll':>4} {'recoord':>7} {'before':>6} {'vsep':>6}  note", file=file)
+          f"{'coll':>4} {'recoord':>7} {'held':>6} {'before':>6} {'vsep':>6}  note", file=file)
 
     def fmt(v, w, p=2):
         return f"{'-':>{w}}" if v is None else f"{v:>{w}.{p}f}" if isinstance(v, float) else f"{v:>{w}}"
@@ -501,7 +526,7 @@ def print_table(title: str, result: dict, file=sys.stdout) -> None:
     for r in result["faults"]:
         print(f"{r['t']:>7.1f} {fmt(r.get('t_sim'), 7, 1)} {r['kind']:<9} {r['robot']:<7} {r['hold_s']:>5.1f} "
               f"{fmt(r.get('detect_s'), 7)} {fmt(r.get('back_s'), 7)} {fmt(r.get('restart_to_cmd_s'), 11)} "
-              f"{fmt(r.get('collisions'), 4)} {fmt(r.get('recoord_s'), 7, 1)} {fmt(r.get('coord_before_m'), 6, 3)} "
+              f"{fmt(r.get('collisions'), 4)} {fmt(r.get('recoord_s'), 7, 1)} {fmt(r.get('recoord_held_s'), 6, 1)} {fmt(r.get('coord_before_m'), 6, 3)} "
               f"{fmt(r.get('victim_min_sep_m'), 6, 3)}"
               f"  {r.get('note', '')}", file=file)
     print("totals: " + ", ".join(f"{k}={v}" for k, v in result["totals"].items()), file=file)

@@ -284,6 +284,28 @@ class TubeSet:
                 for c, v, r, g in zip(self.centre, self.velocity, self.radius, self.growth)]
 
 
+def _tube_centre(px: float, py: float, speed: float, ch: float, sh: float, w: float, t: float, tau: float
+                 ) -> tuple[float, float, float, float]:
+    """A committed plan's arc at ``t`` = max(tau, 0) after its stamp (its centre x, y) and the sine and
+    cosine that turn its velocity: by w tau (a plan stamped after now has its arc at tau = 0 and its
+    velocity turned by w tau). The operations of :func:`predict_position` and :func:`plan_velocity`,
+    in their order: the same numbers."""
+    a = w * t
+    sa, cas = math.sin(a), math.cos(a)
+    if speed < 1e-12:
+        cx, cy = px, py
+    else:
+        if abs(a) < 1e-9:
+            dx_b, dy_b = speed * t, 0.0 * t
+        else:
+            dx_b = (speed * sa) / w
+            dy_b = (speed * (1.0 - cas)) / w
+        cx, cy = px + ch * dx_b - sh * dy_b, py + sh * dx_b + ch * dy_b
+    if t is not tau:
+        sa, cas = math.sin(w * tau), math.cos(w * tau)
+    return cx, cy, sa, cas
+
+
 class _PlanTubes:
     """A guard's tubes at one instant (committed plans), computed on floats, with what the
     filter's pass-through test needs (:meth:`SafetyFilter._clear`); the arrays (:meth:`arrays`)
@@ -313,7 +335,7 @@ class _PlanTubes:
             self.normals, self.inside = [], False
             return
         r0, cs, ca, half_a = cfg.commit_radius_m, cfg.commit_speed_mps, cfg.commit_accel_mps2, 0.5 * cfg.commit_accel_mps2
-        sin, cos, sqrt = math.sin, math.cos, math.sqrt
+        sqrt = math.sqrt
         gamma = filt.gamma
         a_max = filt.model.a_max if filt.config.braking else None
         a_dt = 0.5 * a_max * filt.dt if a_max is not None else 0.0
@@ -325,19 +347,7 @@ class _PlanTubes:
         for stamp, px, py, vx, vy, w, speed, ch, sh in plans:
             tau = now - stamp
             t = tau if tau >= 0.0 else 0.0
-            a = w * t
-            sa, cas = sin(a), cos(a)
-            if speed < 1e-12:
-                cx, cy = px, py
-            else:
-                if abs(a) < 1e-9:
-                    dx_b, dy_b = speed * t, 0.0 * t
-                else:
-                    dx_b = (speed * sa) / w
-                    dy_b = (speed * (1.0 - cas)) / w
-                cx, cy = px + ch * dx_b - sh * dy_b, py + sh * dx_b + ch * dy_b
-            if t is not tau:  # a plan stamped after now: its velocity turned by w tau, its arc at tau = 0
-                sa, cas = sin(w * tau), cos(w * tau)
+            cx, cy, sa, cas = _tube_centre(px, py, speed, ch, sh, w, t, tau)
             cvx, cvy = cas * vx - sa * vy, sa * vx + cas * vy
             radius = r0 + cs * t + half_a * (t * t) - TUBE_MARGIN_M
             dx, dy = x - cx, y - cy
@@ -370,24 +380,11 @@ class _PlanTubes:
     def _tube_rows(self) -> list[tuple[float, float, float, float, float, float]]:
         cfg, now = self._cfg, self._now
         r0, cs, ca, half_a = cfg.commit_radius_m, cfg.commit_speed_mps, cfg.commit_accel_mps2, 0.5 * cfg.commit_accel_mps2
-        sin, cos = math.sin, math.cos
         rows = []
         for stamp, px, py, vx, vy, w, speed, ch, sh in self._plans:
             tau = now - stamp
             t = tau if tau >= 0.0 else 0.0
-            a = w * t
-            sa, cas = sin(a), cos(a)
-            if speed < 1e-12:
-                cx, cy = px, py
-            else:
-                if abs(a) < 1e-9:
-                    dx_b, dy_b = speed * t, 0.0 * t
-                else:
-                    dx_b = (speed * sa) / w
-                    dy_b = (speed * (1.0 - cas)) / w
-                cx, cy = px + ch * dx_b - sh * dy_b, py + sh * dx_b + ch * dy_b
-            if t is not tau:  # a plan stamped after now: its velocity turned by w tau, its arc at tau = 0
-                sa, cas = sin(w * tau), cos(w * tau)
+            cx, cy, sa, cas = _tube_centre(px, py, speed, ch, sh, w, t, tau)
             rows.append((cx, cy, cas * vx - sa * vy, sa * vx + cas * vy, r0 + cs * t + half_a * (t * t) - TUBE_MARGIN_M,
                          cs + ca * tau))
         return rows

@@ -174,12 +174,6 @@ def jit_available() -> bool:
     return _JIT_OK
 
 
-def _cache_repr(config: SolverConfig) -> str:
-    """The solver options a cached (JIT) solver is keyed by: the config without its time cap,
-    which a cached solver does not carry (the keys of solvers built before the cap, kept)."""
-    return repr(config).replace(f", max_solve_s={config.max_solve_s!r}", "")
-
-
 class _WallCap(ca.Callback):
     """The ``iteration_callback`` of a capped solver: asks the solver to stop (a nonzero
     return: ``User_Requested_Stop``) once the wall clock passes :attr:`deadline`."""
@@ -453,7 +447,7 @@ class MPCSolver:
 
                 problem = ca.Function("nlp", [self._w, self._p], [self._f, self._g, self._r]).serialize()
                 # keyed by structure and options, not by robot: robots with the same problem share it
-                key = solver_cache.solver_key(problem, _cache_repr(self.config))
+                key = solver_cache.solver_key(problem, repr(self.config))
                 return solver_cache.cached_function("nlpsol", key, lambda: self._nlpsol(True))
             return self._nlpsol(use_jit)
         except Exception as exc:  # compiler failure: fall back silently (logged)
@@ -463,7 +457,6 @@ class MPCSolver:
             return self._nlpsol(False)
 
     def _nlpsol(self, use_jit: bool) -> ca.Function:
-        c = self.config
         nlp = {"x": self._w, "p": self._p, "f": self._f, "g": self._g}
         # parameter multipliers are never used (and are NaN where a residual has a
         # sqrt/atan2 kink in a parameter direction)

@@ -8,7 +8,7 @@ the solving.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from .config import require
 
@@ -43,10 +43,12 @@ class SolverConfig:
     """Linear penalty per unit slack of soft constraints (exact penalty)."""
     slack_weight_quadratic: float = 1e2
     """Quadratic penalty per unit slack squared of soft constraints."""
-    max_solve_s: float | None = None
+    max_solve_s: float | None = field(default=None, repr=False)
     """Wall-time cap of one solve, its retry included [s]; None: no cap. A solve that
     reaches it stops at its next iteration and the fallback policy applies
-    (docs/reference/controllers.md, "Solve time cap")."""
+    (docs/reference/controllers.md, "Solve time cap"). Left out of the repr, which keys the
+    cache of JIT-compiled solvers: a cached solver carries no cap, so the cap is not part of
+    its identity (and the keys of solvers built before the cap stay valid)."""
 
     def __post_init__(self) -> None:
         require(self.max_solve_s is None or self.max_solve_s > 0, "solver.max_solve_s", self.max_solve_s,

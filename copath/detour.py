@@ -54,7 +54,7 @@ import numpy as np
 from .paths import Path
 
 __all__ = ["DetourConfig", "Disc", "DetourPlan", "DetourPlanner", "DetourStep", "bump", "polygon_disc", "ray_discs",
-           "plan_shift"]
+           "plan_shift", "stretch_command"]
 
 
 @dataclass(frozen=True)
@@ -209,6 +209,35 @@ class DetourStep:
     """Lateral shift of the lane now [m]."""
     events: list[tuple[str, dict]] = field(default_factory=list)
     """(what, detail) of ``detour_start`` / ``detour_end`` events of this step."""
+    stretch: tuple[float, float, float] | None = None
+    """An omni robot on a shifted lane: (the lane's stretch, the path's heading, the robot's
+    heading) for :func:`stretch_command`; None otherwise (the command is passed on as it is)."""
+
+
+def stretch_command(cmd, stretch: tuple[float, float, float] | None):
+    """The controller's command mapped from the shown pose to the true one (the same object when
+    ``stretch`` is None: no lane shifted, or a unicycle).
+
+    The controller paces its path coordinate s as if it were on its base lane (lateral offset
+    q), where a metre along the path is 1 - kappa q metres of travel; alongside the block the
+    shifted lane is 1 - kappa (q + d) metres per metre of path (longer on the outside of a
+    bend). The component of an omni robot's body velocity along the path's tangent is scaled
+    by their ratio, ``stretch[0]``, so that s, and with it the coordination variable, advances
+    at the rate the controller commands (docs/reference/detours.md, "How the controller follows
+    it"). A unicycle's command is left as it is: its speed and turn rate are capped together,
+    and a faster unicycle turned later round a held robot (docs/journal/detours.md, "Lane
+    stretch")."""
+    if stretch is None:
+        return cmd
+    lam, th, heading = stretch
+    out = np.array(cmd, dtype=float, copy=True)
+    if out.shape == (3,):
+        # omni (u, v, omega) in the body frame: the path's tangent at angle th - heading
+        c, s = math.cos(th - heading), math.sin(th - heading)
+        along = out[0] * c + out[1] * s
+        out[0] += (lam - 1.0) * along * c
+        out[1] += (lam - 1.0) * along * s
+    return out
 
 
 class DetourPlanner:
@@ -253,9 +282,6 @@ class DetourPlanner:
         self._quiet_until = -math.inf
         """No new detour before this time (after one was given up) [s]."""
         self.width = self.radius + config.margin_m + config.clearance_m
-        self._stretch: tuple[float, float] | None = None
-        """(lane stretch, the path's heading) at the last step while the lane was shifted."""
-        self._heading = 0.0
 
     # ------------------------------------------------------------------ discs
     def _discs(self, t: float, pose, ranges, angles, peers: Sequence[tuple[float, float, float, bool]]) -> list[Disc]:
@@ -339,35 +365,6 @@ class DetourPlanner:
 
         ``peers``: every other robot the runtime knows of as (x, y, radius, held): ``held``
         for a lost robot held still (a static obstacle), else a live neighbour's disc."""
-        self._stretch = None
-        return self._step(t, pose, ranges, angles, peers)
-
-    def command(self, cmd):
-        """The controller's command mapped from the shown pose to the true one (identity, the
-        same object, while the lane is not shifted).
-
-        The controller paces its path coordinate s as if it were on its base lane (lateral
-        offset q), where a metre along the path is 1 - kappa q metres of travel; alongside the
-        block the shifted lane is 1 - kappa (q + d) metres per metre of path (longer on the
-        outside of a bend). The translational speed along the path is scaled by their ratio
-        so that s, and with it the coordination variable, advances at the rate the controller
-        commands (docs/reference/detours.md, "How the controller follows it"): the component
-        of an omni robot's body velocity along the path's tangent. A unicycle's command is
-        left as it is: its speed and turn rate are capped together, and a faster unicycle
-        turned later round a held robot (docs/journal/detours.md, "Lane stretch")."""
-        if self._stretch is None:
-            return cmd
-        lam, th = self._stretch
-        out = np.array(cmd, dtype=float, copy=True)
-        if out.shape == (3,):
-            # omni (u, v, omega) in the body frame: the path's tangent at angle th - heading
-            c, s = math.cos(th - self._heading), math.sin(th - self._heading)
-            along = out[0] * c + out[1] * s
-            out[0] += (lam - 1.0) * along * c
-            out[1] += (lam - 1.0) * along * s
-        return out
-
-    def _step(self, t: float, pose, ranges, angles, peers) -> DetourStep:
         pose = np.asarray(pose, dtype=float)
         p = pose[:2]
         discs = self._discs(t, pose, ranges, angles, peers)
@@ -432,14 +429,12 @@ class DetourPlanner:
             return DetourStep(pose, 0.0, events)
         seen = pose.copy()
         seen[:2] = p - d * n0
-        slope, spread = plan.slope(s), 1.0 - k0 * (plan.q + d)
+        spread = 1.0 - k0 * (plan.q + d)
         if self.unicycle:
-            seen[2] = pose[2] - math.atan2(slope, spread)
+            seen[2] = pose[2] - math.atan2(plan.slope(s), spread)
+            return DetourStep(seen, d, events)
         base = 1.0 - k0 * plan.q
-        if not self.unicycle and base > 1e-6:
-            self._stretch = spread / base, th0
-            self._heading = float(pose[2])
-        return DetourStep(seen, d, events)
+        return DetourStep(seen, d, events, (spread / base, th0, float(pose[2])) if base > 1e-6 else None)
 
     def _lane(self, s: float, q: float, u0: float, u1: float, n: int = 25):
         """Points of the lane at lateral offset q from u0 to u1 ahead, with their s."""

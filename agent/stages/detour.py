@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from copath.control import PeerMessage
-from copath.detour import DetourPlanner
+from copath.detour import DetourPlanner, stretch_command
 from copath.scenario import Scenario
 from copath.wire.messages import Event
 
@@ -38,14 +38,14 @@ class DetourStage:
         self._lease = float(scenario.run.lease_s)
         self._held_at: float | None = None
         """The last instant the runtime held this robot still (cut off) [s]."""
-        self._mapped = False
-        """Whether the planner ran at this step (its command map applies)."""
+        self._stretch: tuple[float, float, float] | None = None
+        """This step's lane stretch (an omni robot on a shifted lane; :func:`copath.detour.stretch_command`)."""
 
     def step(self, now: float, pose: np.ndarray, ranges, angles, inbox: list[PeerMessage], events: list[Event],
              held: bool, liveness: LivenessStage, safety: SafetyStage | None) -> tuple[np.ndarray, float]:
         """The pose the controller sees and the lane's shift; the stage's events are appended
         to ``events``. A robot the runtime holds still (cut off) plans nothing."""
-        self._mapped = False
+        self._stretch = None
         if self.planner is None or held:
             self._held_at = now
             return pose, 0.0
@@ -73,11 +73,11 @@ class DetourStage:
                 spread = min(0.5 * max(now - stamp, 0.0), 0.5)
                 peers.append((x, y, self._radii.get(r, 0.0) + spread, r in liveness.lost and not deaf))
         out = planner.step(now, pose, ranges, angles, peers)
-        self._mapped = True
+        self._stretch = out.stretch
         events += [Event(float(now), self.robot, what, detail) for what, detail in out.events]
         return out.pose, out.offset
 
     def command(self, cmd):
-        """The controller's command mapped onto the shifted lane (:meth:`DetourPlanner.command`;
+        """The controller's command mapped onto the shifted lane (:func:`copath.detour.stretch_command`;
         the same object while no lane is shifted)."""
-        return self.planner.command(cmd) if self._mapped else cmd
+        return stretch_command(cmd, self._stretch)

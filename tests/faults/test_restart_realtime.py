@@ -21,17 +21,10 @@ import pytest
 
 from orchestrator.studies.bench.chaos import robot_pid
 from orchestrator.log.mcap import read_log
+from orchestrator.testkit.processes import victim
 from tests.conftest import config
 
 pytestmark = [pytest.mark.faults, pytest.mark.timeout(400)]
-
-
-def _wait_started(p, out, limit_s=150.0) -> None:
-    deadline = time.monotonic() + limit_s
-    log = out / "logs" / "sim.log"
-    while not (log.is_file() and "run started" in log.read_text(errors="replace")):
-        assert p.poll() is None and time.monotonic() < deadline, p.stderr.read().decode()[-2000:]
-        time.sleep(0.05)
 
 
 def _command_gap(records, name: str) -> tuple[float, float | None]:
@@ -58,16 +51,21 @@ def test_a_killed_robot_restarts_and_commands_again_over_zenoh(tmp_path, procs, 
     p = procs.start(["-m", "orchestrator", "run", str(config("e5.5-")), "--out", str(tmp_path), "--run-id", "rsrt",
                      "--duration", "36" if clock == "realtime" else "60", "-q", "--no-plots",
                      "--set", 'run.on_robot_failure="restart"', "--set", f'run.clock="{clock}"'])
-    _wait_started(p, tmp_path)
-    time.sleep(8.0 if clock == "realtime" else 3.0)
-    pid = robot_pid("rsrt", "r2")
-    assert pid is not None
+    # The kill waits for the run to be under way in its own time (its log 150 kB long, about
+    # 12 s of either run), not for wall seconds, and its victim is the orchestrator's own
+    # child, not the highest pid named r2 of run "rsrt". Once, in CI, a kill 3 s after the
+    # start did nothing to the run (restarts 0, ok true): a lockstep run's pace is the
+    # machine's, and pids wrap at 32768. The robot_lost below proves the kill landed mid-run.
+    pid = victim(p, tmp_path, "r2", under_way_bytes=150_000)
     os.kill(pid, signal.SIGKILL)
     assert p.wait(timeout=300) == 0, p.stderr.read().decode()[-3000:]
     m = json.loads((tmp_path / "metrics.json").read_text())
+    log = read_log(tmp_path / "run.mcap")
+    lost = [float(r.t) for _, _, r in log.records
+            if getattr(r, "TYPE", "") == "event" and r.what == "robot_lost" and r.detail.get("robot") == "r2"]
+    assert len(lost) == 1 and 5.0 < lost[0] < 20.0, lost  # mid-run
     r2 = m["robots"]["r2"]
     assert m["ok"] and r2["restarts"] == 1 and r2["outage_open"] is False
-    log = read_log(tmp_path / "run.mcap")
     before, after = _command_gap(log.records, "r2")
     assert after is not None, "r2 never commanded again"
     assert r2["outage_s"] == pytest.approx(after - before, abs=1e-6)

@@ -126,17 +126,20 @@ def _cmdline(pid: str) -> list[str]:
         return []
 
 
-def _state(pid: int) -> str:
+def _stat(pid: int) -> tuple[str, int]:
+    """(state, start time in clock ticks since boot) of ``pid``; ("", 0) once it is gone."""
     try:
         with open(f"/proc/{pid}/stat") as fh:
-            return fh.read().rsplit(")", 1)[1].split()[0]
-    except (OSError, IndexError):
-        return ""
+            fields = fh.read().rsplit(")", 1)[1].split()
+        return fields[0], int(fields[19])  # state (field 3), starttime (field 22)
+    except (OSError, IndexError, ValueError):
+        return "", 0
 
 
 def robot_pid(run_id: str, robot: str) -> int | None:
-    """The live process of ``robot`` in run ``run_id`` (the newest), from /proc."""
-    best = None
+    """The live process of ``robot`` in run ``run_id`` (the newest by start time: pids wrap,
+    at 32768 on a default Linux), from /proc."""
+    best: tuple[int, int] | None = None
     for d in os.listdir("/proc"):
         if not d.isdigit():
             continue
@@ -148,10 +151,11 @@ def robot_pid(run_id: str, robot: str) -> int | None:
                 continue
         except (ValueError, IndexError):
             continue
-        if _state(int(d)) in ("Z", "X", ""):
+        state, started = _stat(int(d))
+        if state in ("Z", "X", ""):
             continue
-        best = max(best or 0, int(d))
-    return best
+        best = max(best or (0, 0), (started, int(d)))
+    return best[1] if best else None
 
 
 def _send(pid: int, sig: int) -> bool:

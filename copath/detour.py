@@ -37,6 +37,9 @@ Blocks come from
   ``stall_s`` with a live neighbour's disc on its lane ahead goes round it on its right (the
   deadlock of two CBF-filtered robots head-on, Grover et al. 2020: the filter alone keeps
   them still on the boundary of the safe set).
+- a teammate that holds the robot back: a robot that has detoured before and whose command
+  the safety filter keeps changing behind a live teammate on its lane goes round it (a column
+  that a detour inverted restores its order, docs/reference/detours.md, "Passing a teammate").
 
 The stage is pure (no clock, no transport): :meth:`DetourPlanner.step` takes the time, pose,
 readings and what the runtime heard, and returns the pose to show the controller and the
@@ -84,6 +87,11 @@ class DetourConfig:
     """Progress along the path below which the robot counts as making none [m]."""
     memory_s: float = 3.0
     """Sensed points are kept this long after they were last seen [s]."""
+    pass_detours: bool = True
+    """Whether a robot that has detoured, and whose command the safety filter keeps cutting behind
+    a live teammate on its lane, goes round that teammate (restores a column's order)."""
+    pressed_share: float = 0.5
+    """Share of the steps of the last ``stall_s`` with the filter acting that counts as held back."""
 
 
 MIN_SPREAD = 0.25
@@ -185,6 +193,9 @@ class DetourPlan:
     reason: str
     abandoned: bool = False
     """Given up (no progress on the detour for ``stall_s``): the height falls back to 0."""
+    passing: tuple[float, float] | None = None
+    """A detour round a live teammate (reason ``passing``): where it was last seen; the detour
+    is lengthened while it stays beside or ahead on the base lane."""
 
     def u(self, s: float) -> float:
         return self.direction * (s - self.s0)
@@ -276,6 +287,7 @@ class DetourPlanner:
         self.s: float | None = None
         self.direction = 1
         self._history: list[tuple[float, float, float]] = []  # (t, x, y) over the last stall_s
+        self._pressed: list[tuple[float, bool]] = []  # (t, the filter acted at the step before) over the last stall_s
         self._tracked: list[tuple[float, float]] = []  # (t, s) over the last second while tracking
         self._sensed: dict[tuple[int, int], tuple[float, float, float, float]] = {}  # cell -> (x, y, r, t seen)
         self.detours = 0
@@ -358,17 +370,32 @@ class DetourPlanner:
         x, y = h[-1][1], h[-1][2]
         return all(math.hypot(a - x, b - y) < self.config.stall_progress_m for _, a, b in h)
 
+    def held_back(self, t: float) -> bool:
+        """The safety filter acted at ``pressed_share`` of the steps of the last ``stall_s``."""
+        h = self._pressed
+        if not h or t - h[0][0] < self.config.stall_s - 1e-9:
+            return False
+        return sum(p for _, p in h) >= self.config.pressed_share * len(h)
+
     # ------------------------------------------------------------------ step
     def step(self, t: float, pose, ranges=None, angles=None,
-             peers: Sequence[tuple[float, float, float, bool]] = ()) -> DetourStep:
+             peers: Sequence[tuple[float, float, float, bool]] = (), pressed: bool = False) -> DetourStep:
         """One control instant: the pose to show the controller and the detour's events.
 
         ``peers``: every other robot the runtime knows of as (x, y, radius, held): ``held``
-        for a lost robot held still (a static obstacle), else a live neighbour's disc."""
+        for a lost robot held still (a static obstacle), else a live neighbour's disc.
+        ``pressed``: the safety filter changed the robot's command at the step before."""
         pose = np.asarray(pose, dtype=float)
         p = pose[:2]
         discs = self._discs(t, pose, ranges, angles, peers)
         self._remember(t, p)
+        self._pressed.append((t, bool(pressed)))
+        while len(self._pressed) > 2 and self._pressed[1][0] <= t - self.config.stall_s + 1e-9:
+            self._pressed.pop(0)
+        passing = (self.plan is None and self.config.pass_detours and self.detours > 0 and t >= self._quiet_until
+                   and self.held_back(t))
+        live_pass = [(x, y, r) for x, y, r, held in peers
+                     if not held and math.hypot(x - p[0], y - p[1]) <= 1.0] if passing else []
         reach = self.config.lookahead_m + self.width + 0.5
         near = [d for d in discs if math.hypot(d.x - p[0], d.y - p[1]) <= reach + d.radius]
         live_near = []
@@ -376,7 +403,7 @@ class DetourPlanner:
             if self.config.stall_detours and self.stalled(t):
                 live_near = [(x, y, r) for x, y, r, held in peers
                              if not held and math.hypot(x - p[0], y - p[1]) <= 1.0]
-            if not live_near:
+            if not live_near and not live_pass:
                 self.s = None  # nothing to track: the stage costs next to nothing away from obstacles
                 return DetourStep(pose)
         s, x0, y0, th0, k0 = self._track(t, pose)
@@ -396,8 +423,16 @@ class DetourPlanner:
                 peer_discs = [Disc(x, y, r, "peer") for x, y, r in live_near]
                 blocking = self._blocking(s, q, peer_discs, 0.0, 0.6)
                 reason = "stalled" if blocking else None
+            if not blocking and live_pass:
+                peer_discs = [Disc(x, y, r, "peer") for x, y, r in live_pass]
+                blocking = self._blocking(s, q, peer_discs, 0.0, 0.6)
+                reason = "passing" if blocking else None
             if blocking:
-                plan = self._new_plan(t, s, q, blocking, near, reason)
+                # passing a teammate in a column: the lane is the teammate's (the robot held back
+                # behind it is pushed off its own by the filter)
+                plan = self._new_plan(t, s, blocking[0][2] if reason == "passing" else q, blocking, near, reason)
+                if plan is not None and reason == "passing":
+                    plan.passing = (blocking[0][0].x, blocking[0][0].y)
                 if plan is not None:
                     self.plan = plan
                     self.detours += 1
@@ -413,6 +448,8 @@ class DetourPlanner:
             plan.abandoned, plan.target = True, 0.0
         elif not plan.abandoned:
             self._extend(plan, s, near)
+            if plan.passing is not None:
+                self._follow(plan, s, peers)
         plan = self.plan
         if plan is None:
             return DetourStep(pose, 0.0, events)
@@ -466,7 +503,7 @@ class DetourPlanner:
     def _new_plan(self, t: float, s: float, q: float, blocking, near: Sequence[Disc], reason: str) -> DetourPlan | None:
         cfg = self.config
         right = -self.direction  # the robot's right as a sign along the left normal n
-        side = self._side(s, q, blocking, near, right, prefer_right=reason == "stalled")
+        side = self._side(s, q, blocking, near, right, prefer_right=reason in ("stalled", "passing"))
         if side is None:
             return None
         target, group = side
@@ -517,6 +554,20 @@ class DetourPlanner:
         ss = s + self.direction * np.linspace(0.0, u1, 25)
         kappa = np.asarray(self.path.kappa(ss), dtype=float)
         return bool(np.all(1.0 - kappa * q >= MIN_SPREAD))
+
+    def _follow(self, plan: DetourPlan, s: float, peers) -> None:
+        """A detour round a live teammate: lengthened while the teammate (the live disc nearest
+        where it was last seen) stays beside or ahead, so the robot rejoins its lane past it."""
+        px, py = plan.passing
+        live = [(x, y, r) for x, y, r, held in peers if not held and math.hypot(x - px, y - py) <= 0.3]
+        if not live:
+            return
+        x, y, r = min(live, key=lambda d: math.hypot(d[0] - px, d[1] - py))
+        plan.passing = (x, y)
+        if plan.u(s) > plan.u_hi:
+            return  # rejoining
+        u = plan.direction * (float(self._nearest(np.array([x, y]), s)) - plan.s0) + r + self.width
+        plan.u_hi = max(plan.u_hi, u)
 
     def _extend(self, plan: DetourPlan, s: float, near: Sequence[Disc]) -> None:
         """Discs newly seen on the base lane beside or ahead of the detour widen and lengthen it,

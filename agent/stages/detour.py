@@ -23,7 +23,8 @@ class DetourStage:
 
     Reads: the robot's pose, its range ring, the other robots' discs (the safety filter's
     neighbours when it runs: a lost robot is its held disc; else the positions heard in the
-    inbox) and whether the robot is held still.
+    inbox), whether the robot is held still and whether the safety filter changed its last
+    command (a robot held back behind a teammate, docs/reference/detours.md, "Passing a teammate").
     Writes: the pose the controller sees, the lane's shift (telemetry ``detour_offset``) and
     ``detour_start`` / ``detour_end`` events."""
 
@@ -38,6 +39,8 @@ class DetourStage:
         self._lease = float(scenario.run.lease_s)
         self._held_at: float | None = None
         """The last instant the runtime held this robot still (cut off) [s]."""
+        self._interventions = 0
+        """The safety filter's count of changed commands at the last step."""
         self._stretch: tuple[float, float, float] | None = None
         """This step's lane stretch (an omni robot on a shifted lane; :func:`copath.detour.stretch_command`)."""
 
@@ -55,7 +58,8 @@ class DetourStage:
         deaf = self._held_at is not None and now - self._held_at <= self._lease
         quiet = liveness.quiet_for_filter(now) if safety is not None else frozenset()
         if safety is not None and (ranges is not None or liveness.lost or quiet
-                                   or planner.plan is not None or planner.stalled(now)):
+                                   or planner.plan is not None or planner.stalled(now)
+                                   or planner.held_back(now)):
             # a held disc is a block only while its robot is lost or quiet at this step: the filter
             # learns of a return in its own stage, after this one, and a robot restarted this very
             # tick was once planned round as a disc grown for its outage (an E5.4 soak: a 0.81 m
@@ -72,7 +76,11 @@ class DetourStage:
             for r, (x, y, stamp) in self._positions.items():
                 spread = min(0.5 * max(now - stamp, 0.0), 0.5)
                 peers.append((x, y, self._radii.get(r, 0.0) + spread, r in liveness.lost and not deaf))
-        out = planner.step(now, pose, ranges, angles, peers)
+        pressed = False
+        if safety is not None:
+            pressed = safety.guard.interventions != self._interventions
+            self._interventions = safety.guard.interventions
+        out = planner.step(now, pose, ranges, angles, peers, pressed)
         self._stretch = out.stretch
         events += [Event(float(now), self.robot, what, detail) for what, detail in out.events]
         return out.pose, out.offset

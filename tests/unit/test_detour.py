@@ -206,3 +206,40 @@ def test_command_is_stretched_with_the_lane_round_a_bend():
             assert d < 0.0  # the outside, the robot's right
             assert out[0] == pytest.approx(0.2 * (1.0 - d), rel=1e-9)
             assert out[1] == pytest.approx(0.0, abs=1e-9) and out[2] == 0.2  # turn rate untouched
+
+
+def _column(first_detour: bool, duration: float = 80.0):
+    """A robot that wants 0.25 m/s behind a teammate that goes 0.15 m/s on one lane (y = 0); the
+    safety filter (modelled: the robot held to the teammate's speed within 0.35 m behind it,
+    ``pressed``) holds it back. With ``first_detour`` a held robot's disc at x = 1.5 m is gone
+    round first (a column whose order a kill inverted). Returns the robot's and the teammate's
+    x at the end, the events and the smallest distance between them."""
+    path = line((-1.0, 0.0), 0.0, 40.0)
+    planner = DetourPlanner(path, R, True, DT)
+    x, y, xt = 0.0, 0.0, 4.0
+    held = [(1.5, 0.0, 0.15, True)] if first_detour else []
+    events, closest = [], math.inf
+    pressed = False
+    for k in range(int(duration / DT)):
+        step = planner.step(k * DT, np.array([x, y, 0.0]), peers=held + [(xt, 0.0, R, False)], pressed=pressed)
+        events += [what if what != "detour_start" else d["reason"] for what, d in step.events]
+        y = step.offset
+        gap = xt - x
+        pressed = 0.0 < gap < 0.35 and abs(y) < 2 * R + 0.05
+        x += (0.15 if pressed else 0.25) * DT
+        xt += 0.15 * DT
+        closest = min(closest, math.hypot(xt - x, y))
+    return x, xt, events, closest
+
+
+def test_a_robot_held_back_behind_a_teammate_after_a_detour_passes_it():
+    """A column whose order a detour inverted (docs/reference/detours.md, "Passing"): a robot
+    that has detoured and that the filter keeps holding back behind a live teammate on its lane
+    goes round it on its right, past it, and rejoins; a robot that never detoured stays behind
+    (runs without obstacles or lost robots are left as they were)."""
+    x, xt, events, closest = _column(first_detour=True)
+    assert "passing" in events
+    assert x > xt + 0.3  # past the teammate, back on its lane
+    assert closest > 2 * R  # never touched it
+    x, xt, events, _ = _column(first_detour=False)
+    assert "passing" not in events and x < xt

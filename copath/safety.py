@@ -520,6 +520,23 @@ CLEAR_MARGIN = 1e-9
 before the filter skips building its rows [m/s] (many orders above the rounding of a row,
 so the test never passes where the full one fails)."""
 
+SCREEN_MARGIN = 1e-6
+"""Margin by which a far neighbour's rows must hold by the bounds of the far-neighbour screen
+before the pass-through test skips its disc [m/s] (many orders above the rounding of a row and
+of the bounds, so a skipped row is one the full test finds met with ``CLEAR_MARGIN`` to spare;
+docs/reference/safety.md, "The far-neighbour screen")."""
+
+SCREEN_MIN_HEARD = 8
+"""The guard screens far neighbours when it has heard at least this many robots (chosen: with
+5 heard, E5.4, the screen's bounds cost about what the discs they save cost, 2-6 us per step
+more in replays of recorded calls; with 15, E5.4 grown to 16, 13-20 us less; docs/journal/performance.md,
+far-neighbour screen (P25)). Either way the result is the same."""
+
+SCREEN_EPS = 1e-9
+"""A screened disc whose barrier's lower bound is this far above the smallest barrier found
+is not computed [m] (its barrier cannot be the smallest: many orders above the rounding of a
+barrier and of its bound)."""
+
 HARD, LOOKAHEAD, TUBE = 0, 1, 2
 """Slack of a row: the centre rows', the look-ahead rows' or the committed tube's."""
 _NS = 3  # slack variables
@@ -549,6 +566,9 @@ def _spread(nb: Neighbour) -> float:
     """Distance the neighbour may be from its heard position now [m]."""
     return nb.speed_max * max(nb.age, 0.0) if nb.spread is None else nb.spread
 
+
+_HALF_PI = 0.5 * math.pi
+_SQRT2 = math.sqrt(2.0)  # 2 sin(pi / 4): the largest direction error
 
 _DIRS = np.array([[math.cos(a), math.sin(a), 0.0] for a in np.arange(6) * math.pi / 3])
 _COS_DIR = math.cos(math.pi / 6)  # |x| <= max_k c_k^T x / cos(pi / 6) for the six directions c_k
@@ -854,14 +874,7 @@ class SafetyFilter:
         ``deadlock_turn_rad * (1 - r)`` (:meth:`biased_reference`): a fixed, decentralised rule
         that breaks symmetric deadlocks, barely touches a robot that is only slowed a little,
         and keeps lockstep runs reproducible."""
-        u_nom = np.asarray(nominal, dtype=float).reshape(self.m)
-        # what the robot would do with the nominal command (a unicycle's saturate on floats)
-        if not self._plain_unicycle:
-            u_sat, _ = self.model.saturate(u_nom)
-        else:
-            v, w = u_nom.tolist()
-            u_sat = scale_velocities(v, w, self.model.v_max, self.model.omega_max)
-        cap_ok = self._cap is None or self.centre_speed(u_sat) <= self._cap * (1 + 1e-9)
+        u_nom, u_sat, cap_ok = self._saturated(nominal)
         if cap_ok:
             h_min = self._clear(pose, neighbours, ranges, angles, tubes, u_sat)
             if h_min is not None:
@@ -885,6 +898,27 @@ class SafetyFilter:
         if not ok:  # stopping satisfies every barrier with h >= 0
             u = np.zeros(self.m)
         return SafetyResult(u, True, float(np.linalg.norm(u - u_sat)), sigma, h_min, ok, biased)
+
+    def _saturated(self, nominal):
+        """The nominal command as an array, as the model would apply it (saturated; a unicycle's
+        saturate on floats), and whether that meets the speed cap."""
+        u_nom = np.asarray(nominal, dtype=float).reshape(self.m)
+        if not self._plain_unicycle:
+            u_sat, _ = self.model.saturate(u_nom)
+        else:
+            v, w = u_nom.tolist()
+            u_sat = scale_velocities(v, w, self.model.v_max, self.model.omega_max)
+        return u_nom, u_sat, self._cap is None or self.centre_speed(u_sat) <= self._cap * (1 + 1e-9)
+
+    def _screen_terms(self, u) -> tuple[float, float, float, float]:
+        """What the far-neighbour screen (:meth:`SafetyGuard._pass_through`) needs of the command
+        ``u``: ``speed`` = |pdot| (the centre's speed), ``k`` (a centre row's lhs is at least
+        ``-speed (1 + k kappa)``: 1 for a unicycle, ``1 / cos(pi / 6)`` for an omni robot's six
+        rows), the look-ahead distance l (0: no look-ahead rows) and ``|zdot|`` = |T(theta) u|."""
+        if self.omni:
+            return math.hypot(float(u[0]), float(u[1])), 1.0 / _COS_DIR, 0.0, 0.0
+        v, w = float(u[0]), float(u[1])
+        return abs(v), 1.0, self.lookahead, math.hypot(v, self.lookahead * w)
 
     def _clear(self, pose, neighbours: Sequence[Neighbour], ranges, angles, tubes, u) -> float | None:
         """The pass-through test of :meth:`filter` without building the QP's rows: the smallest
@@ -1085,6 +1119,9 @@ class SafetyGuard:
         self._accel = cfg.accel_max_mps2
         # enforced limits of each robot's model: (a_max, alpha_max, yaw-rate bound)
         self._limits = {n: (m.a_max, m.alpha_max, max_turn_rate(m)) for n, m in models.items()}
+        # what the far-neighbour screen reads per robot: r_i + r_j + margin, speed bound, look-ahead, limits
+        self._static = {n: (self.filter.r_eff + self._bounds[n][0] + cfg.margin_m, *self._bounds[n][1:], *self._limits[n])
+                        for n in models}
         self._dt = float(dt)
         self._vel: dict[str, tuple[float, float, float]] = {}
         self._arcs: dict[str, tuple[float, float, float]] = {}  # speed, cos and sin of the heading of _vel
@@ -1181,13 +1218,22 @@ class SafetyGuard:
             if old is not None and stamp > old[2]:
                 self._before[sender] = old
             self._heard[sender] = (float(position[0]), float(position[1]), float(stamp))
+            self._arcs.pop(sender, None)  # the arc's constants are computed when first needed (_arc_of)
             if velocity is not None and len(velocity) == 3:
-                vx, vy = float(velocity[0]), float(velocity[1])
-                self._vel[sender] = (vx, vy, float(velocity[2]))
-                heading = math.atan2(vy, vx)  # the arc's constants, as predict_position computes them
-                self._arcs[sender] = (math.hypot(vx, vy), math.cos(heading), math.sin(heading))
+                self._vel[sender] = (float(velocity[0]), float(velocity[1]), float(velocity[2]))
             else:
                 self._vel.pop(sender, None)
+
+    def _arc_of(self, sender: str) -> tuple[float, float, float]:
+        """The speed and the cosine and sine of the heading of the velocity ``sender`` last sent, as
+        :func:`predict_position` computes them: computed once per message, when first needed (a
+        neighbour the far-neighbour screen skips needs none of them)."""
+        arc = self._arcs.get(sender)
+        if arc is None:
+            vx, vy, _ = self._vel[sender]
+            heading = math.atan2(vy, vx)
+            arc = self._arcs[sender] = (math.hypot(vx, vy), math.cos(heading), math.sin(heading))
+        return arc
 
     def neighbours(self, now: float) -> list[Neighbour]:
         """What the filter knows of every robot heard, at ``now``: a disc around its heard or
@@ -1224,7 +1270,11 @@ class SafetyGuard:
         if self._commit and vel is not None and age < cfg.commit_horizon_s:
             # the sender keeps within its committed tube around the arc it published
             # (docs/reference/safety.md, "committed plans"); with an enforced limit, the tighter of the two
-            speed, ch, sh = self._arcs[sender]
+            arc = self._arcs.get(sender)
+            if arc is None:  # _arc_of, inline (once per message)
+                heading = math.atan2(vel[1], vel[0])
+                arc = self._arcs[sender] = (math.hypot(vel[0], vel[1]), math.cos(heading), math.sin(heading))
+            speed, ch, sh = arc
             tau = max(age, 0.0)
             spread = cfg.commit_radius_m + cfg.commit_speed_mps * tau + 0.5 * cfg.commit_accel_mps2 * tau**2
             if a_max is not None:
@@ -1252,7 +1302,7 @@ class SafetyGuard:
         elif a_max is not None and vel is not None:
             # the sender's enforced acceleration limit and its sent velocity: a guaranteed,
             # tighter disc around the predicted arc (docs/reference/safety.md, "acceleration limits")
-            spread = prediction_bound(age, self._arcs[sender][0], a_max, alpha_max, w_bound, self._dt)
+            spread = prediction_bound(age, self._arc_of(sender)[0], a_max, alpha_max, w_bound, self._dt)
             if spread < s * age:
                 nb = Neighbour(self._predict(sender, x, y, age), age, r, s, spread, look, True)
         elif self._accel is not None:
@@ -1266,6 +1316,118 @@ class SafetyGuard:
                 if spread < s * age:
                     nb = Neighbour((x + vx * age, y + vy * age), age, r, s, spread, look)
         return Neighbour((x, y), age, r, s, lookahead=look) if nb is None else nb
+
+    def _pass_through(self, now: float, pose, u, tubes) -> float | None:
+        """:meth:`SafetyFilter._clear` of every robot heard (the pass-through test: the smallest
+        centre barrier, or None when a row is not met by ``CLEAR_MARGIN`` to spare) for the
+        saturated nominal ``u``, with the far-neighbour screen (docs/reference/safety.md, "The
+        far-neighbour screen"): the same answer, without the disc of a neighbour whose rows hold
+        by bounds alone.
+
+        Per robot heard within ``max_age_s`` (not lost): its disc (:meth:`_neighbour`) is the heard
+        position moved by at most the arc's length ``speed age`` (a chord is no longer than its
+        arc), or not moved, with the spread :meth:`_neighbour` gives (the same branch and the same
+        operations, without a sine or a cosine). So its centre barrier is at least
+        ``h_lb = |p_i - p_heard| - reach - (r_i + r_j + margin + spread)`` and the ratio behind its
+        direction error at most ``spread / (|p_i - p_heard| - reach)``. When every row it makes
+        holds for ``u`` by these bounds with ``SCREEN_MARGIN`` to spare, its disc is not computed;
+        the others' discs (and every robot lost or silent, held still, and the extrapolations of an
+        assumed acceleration bound) go to :meth:`SafetyFilter._clear`. The smallest barrier stays
+        exact: a skipped disc is computed after all when its bound is not above the smallest found
+        by ``SCREEN_EPS``."""
+        f = self.filter
+        speed, k, lk, zspeed = f._screen_terms(u)
+        if len(self._order) != len(self._heard):
+            self._order = sorted(self._heard)
+        cfg = self._config
+        lost, heard, static, vels = self._lost_at, self._heard, self._static, self._vel
+        commit, horizon, max_age, dt = self._commit, cfg.commit_horizon_s, cfg.max_age_s, self._dt
+        r0, cs, half_ca, ca = cfg.commit_radius_m, cfg.commit_speed_mps, 0.5 * cfg.commit_accel_mps2 if commit else 0.0, \
+            cfg.commit_accel_mps2
+        gamma = f.gamma
+        half = 0.5 * gamma
+        a_own = f.model.a_max if cfg.braking else None
+        a_dt = 0.5 * a_own * dt if a_own is not None else 0.0
+        x, y = float(pose[0]), float(pose[1])
+        hypot, sqrt = math.hypot, math.sqrt
+        exact, skipped = [], []
+        for sender in self._order:
+            if sender in lost:
+                nb = self._held(sender, now)
+                if nb is not None:
+                    exact.append(nb)
+                continue
+            x0, y0, stamp = heard[sender]
+            age = now - stamp
+            if age < 0.0:  # max(now - stamp, 0.0), as _neighbour takes it
+                age = 0.0
+            if age > max_age:
+                continue  # no row: the pass-through test skips it
+            base, s, look, a_max, alpha_max, w_bound = static[sender]
+            vel = vels.get(sender)
+            reach, spread, committed = 0.0, s * age, False
+            if commit and vel is not None and age < horizon:
+                v_j = hypot(vel[0], vel[1])
+                sp = r0 + cs * age + half_ca * age**2  # _neighbour's spread, the same operations
+                if a_max is not None:
+                    T = age + dt
+                    turn = v_j * alpha_max * T**3 / 6.0 if alpha_max is not None else v_j * w_bound * T**2
+                    bound = a_max * T**2 / 2.0 + turn
+                    if bound < sp:
+                        sp = bound
+                if sp < spread:
+                    reach, spread, committed = v_j * age, sp, True
+            elif a_max is not None and vel is not None:
+                v_j = hypot(vel[0], vel[1])
+                sp = prediction_bound(age, v_j, a_max, alpha_max, w_bound, dt)
+                if sp < spread:
+                    reach, spread = v_j * age, sp
+            elif self._accel is not None:
+                exact.append(self._neighbour(sender, now))
+                continue
+            dx, dy = x - x0, y - y0
+            lo = sqrt(dx * dx + dy * dy) - reach  # <= the distance to its disc's centre
+            h_lb = lo - (base + spread)
+            ok = h_lb > 0.0
+            if ok:
+                # the direction error kappa = 2 sin(asin(rho / d) / 2) <= asin(rho / d) <= (pi / 2) rho / d, and <= sqrt(2)
+                kappa = min(_HALF_PI * spread / lo, _SQRT2)
+                need = speed * (1.0 + k * kappa) + SCREEN_MARGIN  # the centre row's -lhs at most
+                if committed:  # rhs = n^T c' + growth - rate <= |c'| + growth - rate(h_lb)
+                    rate = gamma * h_lb
+                    if a_own is not None:
+                        a_rel = max(a_own - (v_j * abs(vel[2]) + ca), 0.1 * a_own)
+                        ar_dt = 0.5 * a_rel * dt
+                        rate = min(rate, sqrt(ar_dt**2 + 2.0 * a_rel * h_lb) - ar_dt)
+                    ok = rate >= need + v_j + (cs + ca * age)
+                elif a_own is not None:
+                    ok = min(half * h_lb, sqrt(a_dt**2 + a_own * h_lb) - a_dt) >= need
+                else:
+                    ok = half * h_lb >= need
+                if ok and lk:  # the look-ahead row: |z_i - p_j| >= |p_i - p_j| - l_i
+                    hz = h_lb - 2.0 * lk - look
+                    ok = hz > 0.0 and half * hz >= zspeed + SCREEN_MARGIN
+            if ok:
+                skipped.append((h_lb, sender))
+            else:
+                exact.append(self._neighbour(sender, now))
+        h_min = f._clear(pose, exact, None, None, tubes, u)
+        if h_min is None or not skipped:
+            return h_min
+        skipped.sort()
+        margin, r_eff = cfg.margin_m, f.r_eff
+        for h_lb, sender in skipped:
+            if h_lb - SCREEN_EPS >= h_min:
+                break  # this one's barrier and every later one's are above the smallest
+            # its rows hold (above): only its barrier, with the operations of _clear
+            (nbx, nby), age, radius, speed_max, spread, *_ = self._neighbour(sender, now)
+            if spread is None:
+                spread = speed_max * max(age, 0.0)
+            dx, dy = x - nbx, y - nby
+            h = sqrt(dx * dx + dy * dy) - (r_eff + radius + margin + spread)
+            if h < h_min:
+                h_min = h
+        return h_min
 
     def _held(self, sender: str, now: float) -> Neighbour | None:
         """A robot lost (its liveliness token went), which the simulator holds still from then on,
@@ -1297,14 +1459,14 @@ class SafetyGuard:
         # sent speed, or a straight extrapolation); every point of it is within run / 2 of the
         # chord's midpoint, and the discs' radii grow with the age up to the spread at `age`
         end = nb.position
-        run = self._arcs[sender][0] * age if nb.predicted else math.hypot(end[0] - x, end[1] - y)
+        run = self._arc_of(sender)[0] * age if nb.predicted else math.hypot(end[0] - x, end[1] - y)
         reach = 0.5 * run + _spread(nb)
         a_max = self._limits[sender][0]
         if a_max is not None:
             # held at zero command, it brakes at a_max from its speed at the hold: within a_max of
             # the sent one per second since up to a period before the stamp (prediction_bound's lag)
             vel = self._vel.get(sender)
-            v_hold = nb.speed_max if vel is None else min(nb.speed_max, self._arcs[sender][0] + a_max * (age + self._dt))
+            v_hold = nb.speed_max if vel is None else min(nb.speed_max, self._arc_of(sender)[0] + a_max * (age + self._dt))
             reach += v_hold**2 / (2.0 * a_max)
         centre = (0.5 * (x + end[0]), 0.5 * (y + end[1]))
         back = self._back_at.get(sender)
@@ -1352,7 +1514,7 @@ class SafetyGuard:
     def _predict(self, sender: str, x: float, y: float, age: float) -> tuple[float, float]:
         """:func:`predict_position` of the sender's last message ``age`` (>= 0) later, with the arc's
         constants computed once when it was heard (the same numbers)."""
-        speed, c, s = self._arcs[sender]
+        speed, c, s = self._arc_of(sender)
         if speed < 1e-12:
             return x, y
         return _arc(x, y, speed, c, s, self._vel[sender][2], age)
@@ -1379,6 +1541,15 @@ class SafetyGuard:
                         self.commit_excess_max = max(self.commit_excess_max, float(-gap.min()))
                         # a tube already left is broken (counted): pulling back into it would not undo that
                         tubes = tubes.select(gap >= 0)
+        if len(self._heard) >= SCREEN_MIN_HEARD and not (self._config.use_ranges and ranges is not None
+                                                          and angles is not None):
+            # the pass-through test with the far-neighbour screen (docs/reference/safety.md,
+            # "The far-neighbour screen"): the result of filter's own test, fewer discs computed
+            u_nom, u_sat, cap_ok = self.filter._saturated(command)
+            if cap_ok:
+                h_min = self._pass_through(now, pose, u_sat, tubes)
+                if h_min is not None:
+                    return SafetyResult(u_nom, False, 0.0, 0.0, h_min)
         res = self.filter.filter(pose, command, self.neighbours(now), ranges, angles, tubes)
         if res.active:
             self.interventions += 1

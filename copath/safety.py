@@ -170,6 +170,13 @@ class SafetyConfig:
     commit_horizon_s: float = 2.5
     """Committed plans: how long each published plan is kept [s] (chosen: above the largest
     age of information at 1 s of delay and 50 % loss in the measured runs)."""
+    command_lag_periods: float | None = None
+    """How late a robot's command may take effect, in control periods after the observation
+    its pose (and its envelopes' stamp) comes from: the lag of the prediction bound of a
+    neighbour's sent velocity (docs/reference/safety.md, "Late commands"). None: 1 with the
+    lockstep clock (a command is applied at the tick it answers), 2 with the realtime clock
+    (chosen: the realtime chaos soak measured commands a period late, docs/journal/faults.md,
+    "How late a realtime command is")."""
 
     def __post_init__(self) -> None:
         a_c = self.commit_accel_mps2
@@ -181,6 +188,10 @@ class SafetyConfig:
                 self.commit_speed_mps, "must be >= 0")
         require(math.isfinite(self.commit_horizon_s) and self.commit_horizon_s > 0, "safety.commit_horizon_s",
                 self.commit_horizon_s, "must be > 0")
+        lag = self.command_lag_periods
+        require(lag is None or (isinstance(lag, (int, float)) and not isinstance(lag, bool) and math.isfinite(lag)
+                                and lag >= 1), "safety.command_lag_periods", lag,
+                "must be a number of control periods >= 1 (or left out: 1 in lockstep, 2 in realtime)")
         require(self.gamma is None or self.gamma > 0, "safety.gamma", self.gamma, "must be > 0")
         require(self.margin_m >= 0, "safety.margin_m", self.margin_m, "must be >= 0")
         require(self.speed_max_mps is None or self.speed_max_mps > 0, "safety.speed_max_mps",
@@ -590,17 +601,26 @@ class SafetyFilter:
     capacity : int
         Number of barrier rows to build the QP for up front (neighbours, their look-ahead rows
         for a unicycle, range readings); more rows rebuild it once, larger.
+    lag_periods : float
+        How many control periods one command may drive (``safety.command_lag_periods`` for
+        the run's clock; 1: exactly one, as in lockstep).
     """
 
     def __init__(self, config: SafetyConfig, model: OmniModel | UnicycleModel, dt: float,
-                 capacity: int = 0) -> None:
+                 capacity: int = 0, lag_periods: float = 1.0) -> None:
         require(config.gamma is None or config.gamma * dt <= 1.0 + 1e-12, "safety.gamma", config.gamma,
                 f"must be <= 1/run.dt = {1.0 / dt:g} 1/s so a barrier cannot be overshot in one period")
         self.config = config
         self.model = model
+        require(math.isfinite(lag_periods) and lag_periods >= 1, "lag_periods", lag_periods,
+                "expected a number of control periods >= 1")
         self.dt = float(dt)
-        self.gamma = config.gamma if config.gamma is not None else 0.8 / self.dt
-        """Barrier gain in use [1/s]."""
+        self.hold = self.dt * float(lag_periods)
+        """How long one command may drive [s]: the control period times the command lag
+        (``safety.command_lag_periods``; docs/reference/safety.md, "Late commands")."""
+        self.gamma = (config.gamma if config.gamma is not None else 0.8 / self.dt) / float(lag_periods)
+        """Barrier gain in use [1/s]: ``safety.gamma`` (0.8 / dt) over the command lag, so a gap
+        closes by at most gamma * hold * h <= h while one command drives."""
         self.omni = isinstance(model, OmniModel)
         self._plain_unicycle = type(model).saturate is UnicycleModel.saturate
         self.m = model.command_size
@@ -765,7 +785,7 @@ class SafetyFilter:
             # (docs/reference/safety.md, "acceleration limits")
             # (discrete: velocity held over dt, shed by a_max dt per period, so it stops within
             # c^2 / (2 a) + c dt / 2 <= h / 2, the positive root c below)
-            a_dt = 0.5 * self.model.a_max * self.dt
+            a_dt = 0.5 * self.model.a_max * self.hold
             stop = np.sqrt(a_dt**2 + self.model.a_max * np.maximum(h, 0.0)) - a_dt
             rhs = -np.minimum(gain * np.maximum(h, 0.0), stop)
         # committed neighbours (docs/reference/safety.md, "committed plans"): the neighbour stays in its
@@ -781,7 +801,7 @@ class SafetyFilter:
             rate = self.gamma * hk
             if self.config.braking and self.model.a_max is not None:
                 a_rel = max(self.model.a_max - acc, 0.1 * self.model.a_max)
-                a_dt = 0.5 * a_rel * self.dt
+                a_dt = 0.5 * a_rel * self.hold
                 rate = min(rate, math.sqrt(a_dt**2 + 2.0 * a_rel * hk) - a_dt)
             rhs[k] = float(n[k] @ np.array([vx, vy])) + grow - rate
         h_min = float(h.min()) if len(h) else math.inf
@@ -836,7 +856,7 @@ class SafetyFilter:
         g = ts.radius - dist
         rate = self.gamma * g
         if self.config.braking and self.model.a_max is not None:
-            a_dt = 0.5 * self.model.a_max * self.dt
+            a_dt = 0.5 * self.model.a_max * self.hold
             stop = np.sqrt(a_dt**2 + self.model.a_max * np.maximum(g, 0.0)) - a_dt
             rate = np.where(g > 0, np.minimum(rate, stop), rate)
         bound = np.einsum("ij,ij->i", mvec, ts.velocity) + ts.growth + rate
@@ -949,7 +969,7 @@ class SafetyFilter:
             z0, z1 = x + lk * c, y + lk * s
         half = 0.5 * self.gamma
         a_max = self.model.a_max if cfg.braking else None
-        a_dt = 0.5 * a_max * self.dt if a_max is not None else 0.0
+        a_dt = 0.5 * a_max * self.hold if a_max is not None else 0.0
         h_min = math.inf
         omni, gamma, r_eff, margin, max_age = self.omni, self.gamma, self.r_eff, cfg.margin_m, cfg.max_age_s
         look = not omni and lk
@@ -972,7 +992,7 @@ class SafetyFilter:
                 rate = gamma * hp
                 if a_max is not None:
                     a_rel = max(a_max - acc, 0.1 * a_max)
-                    ar_dt = 0.5 * a_rel * self.dt
+                    ar_dt = 0.5 * a_rel * self.hold
                     rate = min(rate, sqrt(ar_dt**2 + 2.0 * a_rel * hp) - ar_dt)
                 rhs = nx * cvx + ny * cvy + grow - rate
             elif a_max is not None:
@@ -1077,11 +1097,16 @@ class GuardConfig:
     handles_cut_off: frozenset[str] = frozenset()
     """Robots whose controllers handle being cut off themselves (they may drive on): kept
     as any other when silent."""
+    lag_periods: float = 1.0
+    """How late a sent velocity may take effect after its stamp, in control periods
+    (``safety.command_lag_periods`` resolved for the run's clock)."""
 
     def __post_init__(self) -> None:
         require(self.name in self.models, "name", self.name, f"allowed: one of the robots {sorted(self.models)}")
         require(self.dt > 0, "dt", self.dt, "expected a control period > 0 s")
         require(self.sensor_count >= 0, "sensor_count", self.sensor_count, "expected 0 or more readings")
+        require(math.isfinite(self.lag_periods) and self.lag_periods >= 1, "lag_periods", self.lag_periods,
+                "expected a number of control periods >= 1")
         object.__setattr__(self, "handles_cut_off", frozenset(self.handles_cut_off))
 
 
@@ -1111,7 +1136,7 @@ class SafetyGuard:
         self._commit = cfg.commit_accel_mps2 is not None
         if self._commit:  # one tube row per plan still kept
             rows += int(math.ceil(cfg.commit_horizon_s / dt)) + 1
-        self.filter = SafetyFilter(cfg, own, dt, capacity=rows)
+        self.filter = SafetyFilter(cfg, own, dt, capacity=rows, lag_periods=config.lag_periods)
         cap = cfg.speed_max_mps
         self._bounds = {n: (m.radius, max_speed(m) if cap is None else min(cap, max_speed(m)),
                             0.0 if isinstance(m, OmniModel) else float(cfg.lookahead_m))
@@ -1123,6 +1148,11 @@ class SafetyGuard:
         self._static = {n: (self.filter.r_eff + self._bounds[n][0] + cfg.margin_m, *self._bounds[n][1:], *self._limits[n])
                         for n in models}
         self._dt = float(dt)
+        self._lag = float(config.lag_periods) * self._dt
+        """Lag of the prediction bound [s]: a sent velocity takes effect within it of its stamp."""
+        self._own_vel: tuple[float, float, float, float] | None = None
+        """The stamp and world velocity (xdot, ydot, thetadot) this robot last published: what
+        it drives on while its pose is older than the clock (:meth:`apply`)."""
         self._vel: dict[str, tuple[float, float, float]] = {}
         self._arcs: dict[str, tuple[float, float, float]] = {}  # speed, cos and sin of the heading of _vel
         self._heard: dict[str, tuple[float, float, float]] = {}
@@ -1163,6 +1193,8 @@ class SafetyGuard:
         """Record a plan this robot published (the position and world velocity of its envelopes
         stamped ``stamp``): with committed plans it keeps within the tube around it for
         ``commit_horizon_s``."""
+        if velocity is not None:
+            self._own_vel = (float(stamp), float(velocity[0]), float(velocity[1]), float(velocity[2]))
         if not self._commit or velocity is None:
             return
         stamp = float(stamp)
@@ -1278,7 +1310,7 @@ class SafetyGuard:
             tau = max(age, 0.0)
             spread = cfg.commit_radius_m + cfg.commit_speed_mps * tau + 0.5 * cfg.commit_accel_mps2 * tau**2
             if a_max is not None:
-                T = tau + self._dt
+                T = tau + self._lag
                 turn = speed * alpha_max * T**3 / 6.0 if alpha_max is not None else speed * w_bound * T**2
                 bound = a_max * T**2 / 2.0 + turn
                 spread = min(spread, bound)
@@ -1302,7 +1334,7 @@ class SafetyGuard:
         elif a_max is not None and vel is not None:
             # the sender's enforced acceleration limit and its sent velocity: a guaranteed,
             # tighter disc around the predicted arc (docs/reference/safety.md, "acceleration limits")
-            spread = prediction_bound(age, self._arc_of(sender)[0], a_max, alpha_max, w_bound, self._dt)
+            spread = prediction_bound(age, self._arc_of(sender)[0], a_max, alpha_max, w_bound, self._lag)
             if spread < s * age:
                 nb = Neighbour(self._predict(sender, x, y, age), age, r, s, spread, look, True)
         elif self._accel is not None:
@@ -1341,13 +1373,13 @@ class SafetyGuard:
             self._order = sorted(self._heard)
         cfg = self._config
         lost, heard, static, vels = self._lost_at, self._heard, self._static, self._vel
-        commit, horizon, max_age, dt = self._commit, cfg.commit_horizon_s, cfg.max_age_s, self._dt
+        commit, horizon, max_age, lag = self._commit, cfg.commit_horizon_s, cfg.max_age_s, self._lag
         r0, cs, half_ca, ca = cfg.commit_radius_m, cfg.commit_speed_mps, 0.5 * cfg.commit_accel_mps2 if commit else 0.0, \
             cfg.commit_accel_mps2
         gamma = f.gamma
         half = 0.5 * gamma
         a_own = f.model.a_max if cfg.braking else None
-        a_dt = 0.5 * a_own * dt if a_own is not None else 0.0
+        a_dt = 0.5 * a_own * f.hold if a_own is not None else 0.0
         x, y = float(pose[0]), float(pose[1])
         hypot, sqrt = math.hypot, math.sqrt
         exact, skipped = [], []
@@ -1370,7 +1402,7 @@ class SafetyGuard:
                 v_j = hypot(vel[0], vel[1])
                 sp = r0 + cs * age + half_ca * age**2  # _neighbour's spread, the same operations
                 if a_max is not None:
-                    T = age + dt
+                    T = age + lag
                     turn = v_j * alpha_max * T**3 / 6.0 if alpha_max is not None else v_j * w_bound * T**2
                     bound = a_max * T**2 / 2.0 + turn
                     if bound < sp:
@@ -1379,7 +1411,7 @@ class SafetyGuard:
                     reach, spread, committed = v_j * age, sp, True
             elif a_max is not None and vel is not None:
                 v_j = hypot(vel[0], vel[1])
-                sp = prediction_bound(age, v_j, a_max, alpha_max, w_bound, dt)
+                sp = prediction_bound(age, v_j, a_max, alpha_max, w_bound, lag)
                 if sp < spread:
                     reach, spread = v_j * age, sp
             elif self._accel is not None:
@@ -1397,7 +1429,7 @@ class SafetyGuard:
                     rate = gamma * h_lb
                     if a_own is not None:
                         a_rel = max(a_own - (v_j * abs(vel[2]) + ca), 0.1 * a_own)
-                        ar_dt = 0.5 * a_rel * dt
+                        ar_dt = 0.5 * a_rel * f.hold
                         rate = min(rate, sqrt(ar_dt**2 + 2.0 * a_rel * h_lb) - ar_dt)
                     ok = rate >= need + v_j + (cs + ca * age)
                 elif a_own is not None:
@@ -1519,19 +1551,31 @@ class SafetyGuard:
             return x, y
         return _arc(x, y, speed, c, s, self._vel[sender][2], age)
 
-    def apply(self, pose, command, now: float, ranges=None, angles=None, lost=(), silent=()) -> SafetyResult:
+    def apply(self, pose, command, now: float, ranges=None, angles=None, lost=(), silent=(),
+              pose_t: float | None = None) -> SafetyResult:
         """Filter one command and record the intervention. ``lost``: robots whose liveliness
         token went (``Observation.lost`` less the merely silent ones), which the simulator holds
         still: static obstacles from then on (:meth:`_held`). ``silent``: robots not heard for
         the lease, which hold themselves still once cut off: static obstacles too, from
-        ``silent_hold_s`` after their last stamp."""
+        ``silent_hold_s`` after their last stamp.
+
+        ``pose_t``: when ``pose`` was true (its observation's time; None: ``now``). A realtime
+        robot steps on its own timer with the newest observation, up to a period old, and has
+        moved since on the command it sent last: the filter takes its pose ``now - pose_t``
+        further along the arc of the velocity it last published and grows every neighbour's
+        disc by the error of that prediction (:func:`prediction_bound`, the lag of the
+        command's delivery; without an enforced ``a_max`` or a velocity published at the last
+        step, its pose stays and the discs grow by its speed bound times the age). Its
+        committed tubes are taken at ``pose_t``, the stamp of the plans it published from that
+        pose (docs/reference/safety.md, "Late commands")."""
         if lost or silent or self._lost_at:
             self._note_lost(lost, now, silent)
+        plan_t = now if pose_t is None else min(float(pose_t), now)
         tubes = _NO_TUBES
         if self._commit:
-            plans = self._kept(now)
+            plans = self._kept(plan_t)
             if plans:
-                tubes = _PlanTubes(plans, now, self._config, self.filter, float(pose[0]), float(pose[1]))
+                tubes = _PlanTubes(plans, plan_t, self._config, self.filter, float(pose[0]), float(pose[1]))
                 if not tubes.inside:  # near or past a tube's edge: the exact test, on the arrays
                     tubes = tubes.arrays()
                     d = np.array([float(pose[0]), float(pose[1])])[None, :] - tubes.centre
@@ -1541,16 +1585,27 @@ class SafetyGuard:
                         self.commit_excess_max = max(self.commit_excess_max, float(-gap.min()))
                         # a tube already left is broken (counted): pulling back into it would not undo that
                         tubes = tubes.select(gap >= 0)
-        if len(self._heard) >= SCREEN_MIN_HEARD and not (self._config.use_ranges and ranges is not None
-                                                          and angles is not None):
+        if plan_t == now and len(self._heard) >= SCREEN_MIN_HEARD and not (
+                self._config.use_ranges and ranges is not None and angles is not None):
             # the pass-through test with the far-neighbour screen (docs/reference/safety.md,
-            # "The far-neighbour screen"): the result of filter's own test, fewer discs computed
+            # "The far-neighbour screen"): the result of filter's own test, fewer discs computed;
+            # not for a pose older than the clock (the discs grow by the robot's own reach, below)
             u_nom, u_sat, cap_ok = self.filter._saturated(command)
             if cap_ok:
                 h_min = self._pass_through(now, pose, u_sat, tubes)
                 if h_min is not None:
                     return SafetyResult(u_nom, False, 0.0, 0.0, h_min)
-        res = self.filter.filter(pose, command, self.neighbours(now), ranges, angles, tubes)
+        neighbours = self.neighbours(now)
+        if plan_t < now and neighbours:
+            moved, reach = self._own_now(pose, now - plan_t, plan_t)
+            if ranges is not None and self._config.use_ranges:
+                # range readings are points seen from the pose they were taken at: it stays, and
+                # the discs grow by the whole way the robot may have gone
+                reach += math.hypot(float(moved[0]) - float(pose[0]), float(moved[1]) - float(pose[1]))
+            else:
+                pose = moved
+            neighbours = [nb._replace(spread=_spread(nb) + reach) for nb in neighbours]
+        res = self.filter.filter(pose, command, neighbours, ranges, angles, tubes)
         if res.active:
             self.interventions += 1
             self.change_max = max(self.change_max, res.change)
@@ -1558,6 +1613,24 @@ class SafetyGuard:
             self.slack_steps += int(res.slack > 1e-9)
             self.bias_steps += int(res.biased)
         return res
+
+    def _own_now(self, pose, age: float, pose_t: float) -> tuple[np.ndarray, float]:
+        """This robot's pose ``age`` after ``pose`` was true, and how far from it the robot may be
+        [m] (:meth:`apply`): predicted on the velocity it last published, when that was at the
+        previous step or later and its model's ``a_max`` is enforced; else the pose itself and
+        its speed bound times the age."""
+        a_max, alpha_max, w_bound = self._limits[self.name]
+        _, s_own, _ = self._bounds[self.name]
+        own = self._own_vel
+        if a_max is None or own is None or own[0] < pose_t - self._dt - 1e-9:
+            return pose, s_own * age
+        _, vx, vy, w = own
+        speed = math.hypot(vx, vy)
+        x, y = predict_position(pose, (vx, vy, w), age)
+        spread = prediction_bound(age, speed, a_max, alpha_max, w_bound, self._lag)
+        if spread >= s_own * age:
+            return pose, s_own * age
+        return np.array([x, y, float(pose[2]) + w * age]), spread
 
     def counters(self) -> dict[str, float | int]:
         """Closing counters (``safety_*``) for the robot's stats record."""

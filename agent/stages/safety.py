@@ -25,10 +25,20 @@ from .faults import FaultStage
 from .liveness import LivenessStage
 from .trust import TrustStage
 
-__all__ = ["SafetyStage", "OVERHEAR_SEED"]
+__all__ = ["SafetyStage", "OVERHEAR_SEED", "command_lag_periods"]
 
 OVERHEAR_SEED = 7919
 """Offset of the seed of the safety filter's own fault streams (independent of the controller's)."""
+
+
+def command_lag_periods(scenario: Scenario) -> float:
+    """``safety.command_lag_periods`` for the run's clock: as set, else 1 in lockstep (the
+    command is applied at the tick it answers) and 2 in realtime (chosen: a command reaches the
+    base up to a period late; docs/reference/safety.md, "Late commands")."""
+    lag = scenario.safety.command_lag_periods
+    if lag is not None:
+        return float(lag)
+    return 2.0 if scenario.run.clock == "realtime" else 1.0
 
 
 class SafetyStage:
@@ -48,7 +58,8 @@ class SafetyStage:
         self.guard = SafetyGuard(GuardConfig(
             safety=scenario.safety, name=name, models={r.name: r.model for r in scenario.robots}, dt=scenario.run.dt,
             sensor_count=scenario.sensors.count if scenario.sensors.enabled else 0,
-            silent_hold_s=rule.silent_hold_s, handles_cut_off=rule.handled_by_controller))
+            silent_hold_s=rule.silent_hold_s, handles_cut_off=rule.handled_by_controller,
+            lag_periods=command_lag_periods(scenario)))
         self._overhear = (FaultyInbox(LinkFaults(scenario.network, scenario.run.seed + OVERHEAR_SEED, name))
                           if scenario.safety.overhear else None)
         self._trust = trust
@@ -101,9 +112,9 @@ class SafetyStage:
                 self.guard.hear(env.sender, env.pos, env.stamp, env.vel)
 
     def apply(self, now: float, pose: np.ndarray, command: list[float], ranges, angles, held: bool,
-              telemetry: dict, liveness: LivenessStage) -> list[float]:
+              telemetry: dict, liveness: LivenessStage, pose_t: float | None = None) -> list[float]:
         """The filtered command at ``now`` (the command itself when ``held``: the others keep
-        out of a held robot's disc)."""
+        out of a held robot's disc); ``pose_t`` is when ``pose`` was true (None: ``now``)."""
         t0 = time.perf_counter()
         if self._early:  # the first step: what was overheard before it, at this clock
             early, self._early = self._early, {}
@@ -116,7 +127,8 @@ class SafetyStage:
             for env in ready:
                 if not ranged or self._faults.in_range(env, pose):
                     hear(env.sender, env.pos, env.stamp, env.vel)
-        res = self.guard.apply(pose, command, now, ranges, angles, liveness.lost, liveness.quiet_for_filter(now))
+        res = self.guard.apply(pose, command, now, ranges, angles, liveness.lost, liveness.quiet_for_filter(now),
+                               pose_t)
         if not held:
             command = res.command.tolist()
         telemetry.update(safety_active=res.active, safety_change=res.change, safety_ms=(time.perf_counter() - t0) * 1e3)

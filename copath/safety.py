@@ -171,12 +171,13 @@ class SafetyConfig:
     """Committed plans: how long each published plan is kept [s] (chosen: above the largest
     age of information at 1 s of delay and 50 % loss in the measured runs)."""
     command_lag_periods: float | None = None
-    """How late a robot's command may take effect, in control periods after the observation
-    its pose (and its envelopes' stamp) comes from: the lag of the prediction bound of a
-    neighbour's sent velocity (docs/reference/safety.md, "Late commands"). None: 1 with the
-    lockstep clock (a command is applied at the tick it answers), 2 with the realtime clock
-    (chosen: the realtime chaos soak measured commands a period late, docs/journal/faults.md,
-    "How late a realtime command is")."""
+    """How many control periods one command may drive, and how late after its stamp a sent
+    velocity may take effect: the filter's gain is gamma / L, its braking rows hold a speed
+    for L periods, and a neighbour's prediction has a lag of L periods (docs/reference/safety.md,
+    "Late commands"). None: 1 with the lockstep clock (a command drives exactly the period
+    after the tick it answers: the filter as before), 2 with the realtime clock (chosen:
+    commands a period late were measured, docs/journal/faults.md, "How late a realtime
+    command is")."""
 
     def __post_init__(self) -> None:
         a_c = self.commit_accel_mps2

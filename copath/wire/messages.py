@@ -379,7 +379,8 @@ class PeerEnvelope(_Record):
     seq: int
     """Per-sender sequence number (counts every message the sender published)."""
     stamp: float
-    """Sender's clock [s]."""
+    """Sender's clock [s] at the time its ``pos`` was true: the observation its step used (in
+    realtime up to a period before the step; docs/reference/safety.md, "Late commands")."""
     kind: str
     pos: list[float]
     """Sender's own position estimate [x, y] (range-limited graphs, Def. 10)."""

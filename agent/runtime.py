@@ -314,14 +314,14 @@ class RobotRuntime:
         if detour_offset:
             telemetry["detour_offset"] = detour_offset
         # the pose is the observation's, true at obs.t: a realtime robot steps on its own timer,
-        # up to a period later; its envelopes are stamped with the pose's time, not the step's
-        # (docs/reference/safety.md, "Late commands"); in lockstep the two are the same; the
-        # estimator's pose is predicted to now
+        # up to a period later; the filter and the envelopes (pos_t) say so (docs/reference/safety.md,
+        # "Late commands"); in lockstep the two are the same; the estimator's pose is predicted to now
         pose_t = now if estimate is not None else min(float(obs.t), now)
         if self.safety is not None:  # safety
             cmd = self.safety.apply(now, pose, cmd, ranges, self._angles, held, telemetry, self.liveness, pose_t)
         self.counters.steps += 1
-        peers, vel = self.envelopes.send(pose_t, pose, cmd, res.messages, self.estimator.position_cov)  # envelopes
+        peers, vel = self.envelopes.send(now, pose, cmd, res.messages, self.estimator.position_cov,  # envelopes
+                                         pose_t if pose_t < now else None)
         if self.safety is not None and peers:  # committed plans: the filter keeps what it published
             self.safety.published(pose_t, pose, vel)
         self._last_cmd = cmd

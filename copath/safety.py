@@ -1156,7 +1156,8 @@ class SafetyGuard:
         it drives on while its pose is older than the clock (:meth:`apply`)."""
         self._vel: dict[str, tuple[float, float, float]] = {}
         self._arcs: dict[str, tuple[float, float, float]] = {}  # speed, cos and sin of the heading of _vel
-        self._heard: dict[str, tuple[float, float, float]] = {}
+        self._heard: dict[str, tuple[float, float, float]] = {}  # position and when it was true
+        self._stamps: dict[str, float] = {}  # the stamp of each robot's newest message
         self._before: dict[str, tuple[float, float, float]] = {}  # the sample before the newest
         self._order: list[str] = []  # the robots heard, sorted
         self.interventions = 0
@@ -1241,16 +1242,22 @@ class SafetyGuard:
         config's ``silent_hold_s``, None when that is None or longer than ``max_age_s``."""
         return self._silent_hold
 
-    def hear(self, sender: str, position, stamp: float, velocity=None) -> None:
+    def hear(self, sender: str, position, stamp: float, velocity=None, pos_t: float | None = None) -> None:
         """Remember the newest position (and world velocity (xdot, ydot, thetadot), when the
-        message carries it) a robot sent; older stamps are ignored."""
+        message carries it) a robot sent; older stamps are ignored. ``pos_t``: when the position
+        was true, if before the stamp (a realtime robot's pose is up to a period older than its
+        step; docs/reference/safety.md, "Late commands"): the position and its arc are dated
+        from it."""
         if sender == self.name or sender not in self._bounds:
             return
-        old = self._heard.get(sender)
-        if old is None or stamp >= old[2]:
-            if old is not None and stamp > old[2]:
+        last = self._stamps.get(sender)
+        if last is None or stamp >= last:
+            old = self._heard.get(sender)
+            at = float(stamp) if pos_t is None else min(float(pos_t), float(stamp))
+            if old is not None and at > old[2]:
                 self._before[sender] = old
-            self._heard[sender] = (float(position[0]), float(position[1]), float(stamp))
+            self._stamps[sender] = float(stamp)
+            self._heard[sender] = (float(position[0]), float(position[1]), at)
             self._arcs.pop(sender, None)  # the arc's constants are computed when first needed (_arc_of)
             if velocity is not None and len(velocity) == 3:
                 self._vel[sender] = (float(velocity[0]), float(velocity[1]), float(velocity[2]))
@@ -1482,7 +1489,7 @@ class SafetyGuard:
         x, y, stamp = self._heard[sender]
         quiet = sender in self._quiet
         if quiet:  # it holds itself still once cut off: silent_hold_s after its last stamp at the latest
-            age = self._silent_hold
+            age = self._silent_hold + (self._stamps[sender] - stamp)
         else:
             age = max(self._lost_at[sender] + self._dt - stamp, 0.0)
             if age > self._config.max_age_s:
@@ -1537,7 +1544,7 @@ class SafetyGuard:
         for name, t in list(self._lost_at.items()):
             if name in gone:
                 continue
-            if name in self._heard and self._heard[name][2] >= t:
+            if name in self._stamps and self._stamps[name] >= t:
                 del self._lost_at[name]
                 self._back_at.pop(name, None)
                 self._quiet.discard(name)

@@ -374,13 +374,13 @@ class PeerEnvelope(_Record):
         "payload": "dict",
         "cov": "floats?",
         "vel": "floats?",
+        "pos_t": "float?",
     }
     sender: str
     seq: int
     """Per-sender sequence number (counts every message the sender published)."""
     stamp: float
-    """Sender's clock [s] at the time its ``pos`` was true: the observation its step used (in
-    realtime up to a period before the step; docs/reference/safety.md, "Late commands")."""
+    """Sender's clock [s]."""
     kind: str
     pos: list[float]
     """Sender's own position estimate [x, y] (range-limited graphs, Def. 10)."""
@@ -391,11 +391,16 @@ class PeerEnvelope(_Record):
     """Sender's world-frame velocity [xdot, ydot, thetadot] ([m/s, m/s, rad/s]) under the command
     it applies from ``stamp`` on (its own acceleration-limited command, (3.1)/(3.3)); None in
     logs written before the field existed. The safety filter predicts the sender with it."""
+    pos_t: float | None = None
+    """Sender's clock [s] when ``pos`` was true, when that is before ``stamp``: a realtime robot
+    steps on its own timer with an observation up to a period old (docs/reference/safety.md,
+    "Late commands"); None when it is the stamp (lockstep) and in logs written before the
+    field existed. The safety filter dates the position (and ``vel``'s arc) from it."""
 
     @classmethod
     def from_dict(cls, d):
-        if "vel" not in d:  # written before the field existed
-            d = {**d, "vel": None}
+        if "vel" not in d or "pos_t" not in d:  # written before the fields existed
+            d = {"vel": None, "pos_t": None, **d}
         rec = super().from_dict(d)
         validate_payload(rec.kind, rec.payload)
         if len(rec.pos) != 2:
@@ -508,6 +513,9 @@ and decodes to the same values (ints stay ints)."""
 _FAST_LENGTH = {(PeerEnvelope, "pos"): 2, (PeerEnvelope, "cov"): 3, (PeerEnvelope, "vel"): 3}
 """Fixed list lengths that ``from_dict`` checks after the field types."""
 
+_OPTIONAL_LATER = {(PeerEnvelope, "vel"), (PeerEnvelope, "pos_t")}
+"""Fields added after logs were written without them: absent means None."""
+
 
 class _Head(msgspec.Struct, gc=False):
     """Version, tag and (peer envelopes) kind of any record; the other fields are skipped in C."""
@@ -533,7 +541,7 @@ def _fast_decoder(cls: type[_Record]) -> msgspec.msgpack.Decoder:
             t = Annotated[list[_FINITE], msgspec.Meta(min_length=n, max_length=n)]
             if typ.endswith("?"):
                 t = Optional[t]
-        spec[name] = NotRequired[t] if (cls, name) == (PeerEnvelope, "vel") else t  # vel: older logs
+        spec[name] = NotRequired[t] if (cls, name) in _OPTIONAL_LATER else t
     return msgspec.msgpack.Decoder(TypedDict(f"_{cls.__name__}Wire", spec))
 
 
@@ -608,6 +616,8 @@ def unpack(data: bytes | bytearray | memoryview):
                 if cls is PeerEnvelope:
                     if "vel" not in d:
                         d["vel"] = None
+                    if "pos_t" not in d:
+                        d["pos_t"] = None
                     check = _payload_check(head.kind) if type(head.kind) is str else None
                     if check is None:
                         validate_payload(d["kind"], d["payload"])

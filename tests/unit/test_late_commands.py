@@ -17,7 +17,7 @@ from copath.models import OmniModel, limit_change, world_velocity_list
 from copath.safety import GuardConfig, SafetyConfig, SafetyFilter, SafetyGuard
 from copath.scenario import load_scenario
 from copath.wire.keys import Keys
-from copath.wire.messages import Obs
+from copath.wire.messages import Obs, unpack
 from tests.conftest import config
 
 DT, PHYSICS = 0.05, 0.005  # the DMPC triangle's period; the realtime simulator integrates finer
@@ -29,8 +29,9 @@ def _head_on(phase: dict[str, int], fixed: bool, committed: bool = False) -> flo
     """Two omni robots driving at each other at 0.5 m/s, each filtered, in a small realtime
     simulator: observations every period, the physics (with the enforced a_max) every 5 ms, each
     robot stepping ``phase`` physics steps after the observation it uses, its command driving
-    from then on. ``fixed``: the runtime's stamps and clocks of this change (the pose's time,
-    ``command_lag_periods = 2``); else the ones before it (the step's time, one period).
+    from then on. ``fixed``: as the runtime does now (envelopes say when their position was
+    true, ``pos_t``; the filter knows its pose's time; ``command_lag_periods = 2``); else as
+    before (the pose taken as the step's, one period).
     Returns the smallest distance of the centres [m]."""
     cfg = SafetyConfig(enabled=True, speed_max_mps=1.0, **(COMMIT if committed else {}))
     names = ("a", "b")
@@ -59,9 +60,8 @@ def _head_on(phase: dict[str, int], fixed: bool, committed: bool = False) -> flo
             cmd[n] = np.asarray(res.command, dtype=float)
             sent[n] = limit_change(OMNI, sent[n], OMNI.saturate(cmd[n])[0], DT)
             vel = world_velocity_list(OMNI, float(obs[n][2]), sent[n])
-            stamp = t_obs if fixed else now
-            guards[n].published(stamp, obs[n], vel)
-            envelope[n] = (obs[n][:2].tolist(), stamp, vel)
+            guards[n].published(t_obs if fixed else now, obs[n], vel)
+            envelope[n] = (obs[n][:2].tolist(), now, vel, t_obs if fixed else None)
         for n in names:
             applied[n] = limit_change(OMNI, applied[n], OMNI.saturate(cmd[n])[0], PHYSICS)
             c, s = math.cos(pose[n][2]), math.sin(pose[n][2])
@@ -82,8 +82,8 @@ def test_robots_stepping_late_in_the_period_keep_footprints_and_margin(phase, co
 
 
 def test_before_the_change_a_late_step_drove_a_pair_into_contact():
-    """The same run with the envelope stamped at the step's time, the pose taken as fresh and
-    a command bounded for one period: the filters passed commands that met (0.35 m of centres
+    """The same run with the pose taken as the step's (in the filter and in the envelopes) and a
+    command bounded for one period: the filters passed commands that met (0.35 m of centres
     against 0.40 m of footprints)."""
     assert _head_on({"a": 9, "b": 9}, fixed=False) < 2 * OMNI.radius - 0.02
 
@@ -135,14 +135,20 @@ def test_lag_setting_defaults_by_clock_and_refuses_bad_values():
         GuardConfig(safety=SafetyConfig(enabled=True), name="a", models={"a": OMNI}, dt=DT, lag_periods=0.0)
 
 
-def test_a_realtime_robot_stamps_its_envelopes_with_its_pose_time():
-    """The runtime's envelopes carry the observation's pose and its time, not the step's; the
-    command keeps the step's time (the controller's clock)."""
+def test_a_realtime_robot_says_when_its_envelope_position_was_true():
+    """The runtime's envelopes keep the step's stamp (the controllers' clock) and carry the
+    observation's time as ``pos_t``; in lockstep the two are the same and ``pos_t`` is left out;
+    a receiver's filter dates the position from it."""
     scen = load_scenario(config("e5.2-dmpc"))
-    scen = dataclasses.replace(scen, run=dataclasses.replace(scen.run, clock="realtime"))
-    rt = RobotRuntime(scen, "r1", Keys("late"))
+    real = dataclasses.replace(scen, run=dataclasses.replace(scen.run, clock="realtime"))
     pose = list(scen.robot("r1").pose)
-    out = rt.step(Obs(3, 0.15, pose), 0.19)
-    assert out.peers and {env.stamp for _, env in out.peers} == {0.15}
+    out = RobotRuntime(real, "r1", Keys("late")).step(Obs(3, 0.15, pose), 0.19)
+    assert out.peers and {(env.stamp, env.pos_t) for _, env in out.peers} == {(0.19, 0.15)}
     assert all(env.pos == pose[:2] for _, env in out.peers)
-    assert out.command.t == 0.19
+    env = out.peers[0][1]
+    assert unpack(env.pack()) == env  # over the wire
+    lock = RobotRuntime(scen, "r1", Keys("late")).step(Obs(3, 0.15, pose), 0.15)
+    assert {(e.stamp, e.pos_t) for _, e in lock.peers} == {(0.15, None)}
+    g = SafetyGuard(GuardConfig(safety=SafetyConfig(enabled=True), name="a", models={"a": OMNI, "b": OMNI}, dt=DT))
+    g.hear("b", [1.0, 0.0], 0.19, [0.0, 0.0, 0.0], pos_t=0.15)
+    assert g.neighbours(0.2)[0].age == pytest.approx(0.05)

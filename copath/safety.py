@@ -102,6 +102,13 @@ __all__ = ["SafetyConfig", "GuardConfig", "Neighbour", "Tube", "TubeSet", "Safet
            "max_speed", "max_turn_rate", "prediction_bound", "predict_position", "commit_radius", "plan_velocity"]
 
 
+def require_lag(key: str, value, allowed_more: str = "") -> None:
+    """Check a command lag (``safety.command_lag_periods``, docs/reference/safety.md, "Late
+    commands"): a finite number of control periods >= 1; ``allowed_more`` adds to the message."""
+    require(isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value) and value >= 1,
+            key, value, f"must be a number of control periods >= 1{allowed_more}")
+
+
 @dataclass(frozen=True)
 class SafetyConfig:
     """The ``[safety]`` table of a scenario (one filter per robot, same settings for all)."""
@@ -189,10 +196,9 @@ class SafetyConfig:
                 self.commit_speed_mps, "must be >= 0")
         require(math.isfinite(self.commit_horizon_s) and self.commit_horizon_s > 0, "safety.commit_horizon_s",
                 self.commit_horizon_s, "must be > 0")
-        lag = self.command_lag_periods
-        require(lag is None or (isinstance(lag, (int, float)) and not isinstance(lag, bool) and math.isfinite(lag)
-                                and lag >= 1), "safety.command_lag_periods", lag,
-                "must be a number of control periods >= 1 (or left out: 1 in lockstep, 2 in realtime)")
+        if self.command_lag_periods is not None:
+            require_lag("safety.command_lag_periods", self.command_lag_periods,
+                        " (or left out: 1 in lockstep, 2 in realtime)")
         require(self.gamma is None or self.gamma > 0, "safety.gamma", self.gamma, "must be > 0")
         require(self.margin_m >= 0, "safety.margin_m", self.margin_m, "must be >= 0")
         require(self.speed_max_mps is None or self.speed_max_mps > 0, "safety.speed_max_mps",
@@ -613,8 +619,7 @@ class SafetyFilter:
                 f"must be <= 1/run.dt = {1.0 / dt:g} 1/s so a barrier cannot be overshot in one period")
         self.config = config
         self.model = model
-        require(math.isfinite(lag_periods) and lag_periods >= 1, "lag_periods", lag_periods,
-                "expected a number of control periods >= 1")
+        require_lag("lag_periods", lag_periods)
         self.dt = float(dt)
         self.hold = self.dt * float(lag_periods)
         """How long one command may drive [s]: the control period times the command lag
@@ -1106,8 +1111,7 @@ class GuardConfig:
         require(self.name in self.models, "name", self.name, f"allowed: one of the robots {sorted(self.models)}")
         require(self.dt > 0, "dt", self.dt, "expected a control period > 0 s")
         require(self.sensor_count >= 0, "sensor_count", self.sensor_count, "expected 0 or more readings")
-        require(math.isfinite(self.lag_periods) and self.lag_periods >= 1, "lag_periods", self.lag_periods,
-                "expected a number of control periods >= 1")
+        require_lag("lag_periods", self.lag_periods)
         object.__setattr__(self, "handles_cut_off", frozenset(self.handles_cut_off))
 
 
@@ -1310,11 +1314,7 @@ class SafetyGuard:
         if self._commit and vel is not None and age < cfg.commit_horizon_s:
             # the sender keeps within its committed tube around the arc it published
             # (docs/reference/safety.md, "committed plans"); with an enforced limit, the tighter of the two
-            arc = self._arcs.get(sender)
-            if arc is None:  # _arc_of, inline (once per message)
-                heading = math.atan2(vel[1], vel[0])
-                arc = self._arcs[sender] = (math.hypot(vel[0], vel[1]), math.cos(heading), math.sin(heading))
-            speed, ch, sh = arc
+            speed, ch, sh = self._arc_of(sender)
             tau = max(age, 0.0)
             spread = cfg.commit_radius_m + cfg.commit_speed_mps * tau + 0.5 * cfg.commit_accel_mps2 * tau**2
             if a_max is not None:

@@ -41,6 +41,13 @@ from .world import World
 
 logger = logging.getLogger("copath.sim")
 
+_WAKE = ("", None)
+"""Put in the command queue when a robot's token goes or comes under ``continue``/``restart``:
+the lockstep wait applies the change at once, not at its next 0.2 s poll. Without it a
+restart from the zygote (0.2-0.3 s) could land in the same poll as the loss, and the
+simulator recorded ``robot_lost`` and ``robot_rejoined`` at one instant: an outage the
+team never saw (docs/reference/faults.md, "A restart in lockstep")."""
+
 __all__ = ["SimNode", "main"]
 
 
@@ -165,12 +172,14 @@ class SimNode:
                     logger.warning("robot %s's liveliness token is back", name)
                 if self._started_run and self.policy != "fail":
                     self._transitions.put((name, True))
+                    self.cmds.put(_WAKE)
             elif name in self.alive:
                 self.alive.discard(name)
                 if self._started_run and not self._closing and name in self.names:
                     logger.warning("robot %s's liveliness token disappeared", name)
                 if self._started_run and self.policy != "fail":
                     self._transitions.put((name, False))
+                    self.cmds.put(_WAKE)
                 elif self._started_run:  # "fail": lost unless it is back within the grace period
                     self._gone_at[name] = time.monotonic()
                 # before the start a robot whose token went is simply waited for again
@@ -329,6 +338,8 @@ class SimNode:
                 try:
                     name, cmd = self.cmds.get(timeout=min(0.2, max(0.0, deadline - time.monotonic())))
                 except queue.Empty:
+                    cmd = None
+                if cmd is None:  # timed out, or woken by a robot's token going or coming
                     if time.monotonic() >= deadline:
                         for n in sorted(waiting):
                             self.missed[n] += 1
@@ -370,6 +381,8 @@ class SimNode:
                     name, cmd = self.cmds.get_nowait()
                 except queue.Empty:
                     break
+                if cmd is None:  # a wake-up of the lockstep wait (_WAKE)
+                    continue
                 self.world.command(name, cmd.cmd)
                 self._cmd_at[name] = t
                 self._timed_out.discard(name)

@@ -297,6 +297,8 @@ def test_a_restarted_leader_follows_the_new_one_in_a_fleet(tmp_path, procs):
     rejoined = [r.t for _, _, r in log.records if getattr(r, "TYPE", "") == "event" and r.what == "robot_rejoined"]
     assert len(rejoined) == 1
     lost = [r.t for _, _, r in log.records if getattr(r, "TYPE", "") == "event" and r.what == "robot_lost"]
+    # the world steps on without the dead leader until the new process is back (sim.node._WAKE)
+    assert len(lost) == 1 and rejoined[0] > lost[0]
     # metrics.json measures the team from the leader it has: f1 from the loss to the end
     assert m["fleet"]["leaders"] == [[0.0, "leader"], [pytest.approx(lost[0], abs=1e-6), "f1"]]
     tel: dict[str, list] = {}

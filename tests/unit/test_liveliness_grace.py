@@ -73,3 +73,22 @@ def test_lease_must_be_positive_and_reaches_the_table():
     table["run"]["lease_s"] = 0
     with pytest.raises(ConfigError, match=r"run.lease_s = 0"):
         parse_scenario(table)
+
+
+def test_a_token_change_under_restart_wakes_the_lockstep_wait():
+    """Under ``continue``/``restart`` a token that goes or comes wakes the lockstep wait for
+    commands (``sim.node._WAKE``), so the loss is applied while the others step on, and a
+    restart from the zygote (0.2-0.3 s) is not applied in the same poll as the loss."""
+    from sim.node import _WAKE
+
+    table = scenario_table(3, 0.1, 5.0, 2.0)
+    table["run"]["on_robot_failure"] = "restart"
+    node = SimNode(parse_scenario(table), KEYS, MemoryLink(MemoryBus()))
+    for n in node.names:
+        node._on_alive(KEYS.alive(n), True)
+    assert node.cmds.empty()  # before the start: no transition, nothing to wake
+    node._started_run = True
+    node._on_alive(KEYS.alive("r2"), False)
+    assert node.cmds.get_nowait() is _WAKE and node._transitions.get_nowait() == ("r2", False)
+    node._on_alive(KEYS.alive("r2"), True)
+    assert node.cmds.get_nowait() is _WAKE and node._transitions.get_nowait() == ("r2", True)

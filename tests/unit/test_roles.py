@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 from scipy.optimize import linear_sum_assignment
 
@@ -148,8 +148,24 @@ def test_negotiation_initiator_and_ties():
     assert book.lost([Ruling(2, "r7", "r5")])
 
 
-def _negotiate_team(claims0, dist, n_pos, rounds, loss, rng):
-    """Robots exchange claims, taken sets and rulings (with loss) until settled."""
+def test_a_ruling_is_final_when_the_distances_change():
+    """The initiator repeats its ruling: made again from the distances of a later step it
+    would go the other way here, after the loser has already left on the first one, and
+    the position would be left empty (docs/journal/measurements.md, rulings are final
+    (W16))."""
+    book = RoleBook("r13", 12, 10)
+    book.claim(9)
+    rulings, _ = book.negotiate(0.887, book.conflicts([Claim("r9", 8, 9, 0.891)]))
+    assert rulings == [Ruling(9, "r13", "r9")]
+    rulings, _ = book.negotiate(0.865, book.conflicts([Claim("r9", 8, 9, 0.857)]))  # r9 moved on
+    assert rulings == [Ruling(9, "r13", "r9")] and book.position == 9
+    assert book.conflicts_initiated == 1
+
+
+def _negotiate_team(claims0, dist, n_pos, rounds, loss, rng, speed=0.0):
+    """Robots exchange claims, taken sets and rulings (with loss) until settled; with
+    ``speed`` every robot moves towards its claimed position by up to that much per round
+    (its distances to the other positions kept), so the distances a ruling compares change."""
     names = [f"r{i}" for i in range(len(claims0))]
     books = {n: RoleBook(n, i, n_pos) for i, n in enumerate(names)}
     for n, c in zip(names, claims0):
@@ -175,16 +191,20 @@ def _negotiate_team(claims0, dist, n_pos, rounds, loss, rng):
             outbox[n] = [(r.position, r.winner, r.loser) for r in rulings]
             if any(r.loser == n for r in rulings):
                 b.claim(nearest_position(np.zeros(2), np.zeros((n_pos, 2)), [k for k in b.available if k != b.position]))
+            if speed > 0 and b.position >= 0:
+                dist[n][b.position] = max(0.0, dist[n][b.position] - speed * rng.random())
     return books
 
 
 @settings(max_examples=40)
-@given(st.integers(0, 10**6), st.integers(2, 9), st.integers(1, 9), st.sampled_from([0.0, 0.2]))
-def test_negotiation_never_leaves_two_robots_on_one_position(seed, n, m, loss):
+@given(st.integers(0, 10**6), st.integers(2, 9), st.integers(1, 9), st.sampled_from([0.0, 0.2]),
+       st.sampled_from([0.0, 0.2]))
+@example(seed=2, n=8, m=1, loss=0.0, speed=0.2)  # both claimants left it before rulings were final
+def test_negotiation_never_leaves_two_robots_on_one_position(seed, n, m, loss, speed):
     rng = np.random.default_rng(seed)
     claims = rng.integers(0, m, n)  # everybody starts with a (possibly shared) claim
     dist = {f"r{i}": rng.uniform(0.1, 3.0, m) for i in range(n)}
-    books = _negotiate_team(list(claims), dist, m, rounds=60, loss=loss, rng=rng)
+    books = _negotiate_team(list(claims), dist, m, rounds=60, loss=loss, rng=rng, speed=speed)
     held = [b.position for b in books.values() if b.position >= 0]
     assert len(held) == len(set(held))  # no position held twice
     assert len(held) == min(n, m)  # and no position left empty while a robot has none

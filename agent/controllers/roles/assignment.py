@@ -113,8 +113,10 @@ class RoleBook:
     """p(i), -1 while unassigned."""
     taken: set[int] = field(default_factory=set)
     """J^t_i."""
-    resolved: set[tuple[int, str]] = field(default_factory=set)
-    """(position, other) pairs this robot has ruled on as initiator."""
+    resolved: dict[tuple[int, str], Ruling] = field(default_factory=dict)
+    """(position, other) -> the ruling this robot made on that pair as initiator. A ruling
+    is final (Algorithm 6.2, lines 6-14: the loser is dequeued and moves on): it is
+    repeated, never made again from newer distances."""
     won: set[tuple[int, str]] = field(default_factory=set)
     """(position, initiator) pairs where a ruling said this robot won."""
     conflicts_initiated: int = 0
@@ -169,7 +171,11 @@ class RoleBook:
 
         The robot initiates against every conflicting neighbour with a lower index, in
         descending index order; d_i <= d_k means it wins (ties go to the initiator).
-        It stops at the first loss (A_i is emptied).
+        It stops at the first loss (A_i is emptied). A pair it has already ruled on keeps
+        that ruling: the loser acts on it when it arrives, so a ruling made again from
+        the distances of a later step, which may go the other way once both robots have
+        moved, would send both away and leave the position empty while every robot counts
+        it taken (docs/journal/roles.md, Rulings are final).
 
         Returns
         -------
@@ -186,12 +192,13 @@ class RoleBook:
                 waiting = True
                 continue
             key = (self.position, c.name)
-            if own_distance <= c.distance:
-                ruling = Ruling(self.position, self.name, c.name)
-            else:
-                ruling = Ruling(self.position, c.name, self.name)
-            if key not in self.resolved:
-                self.resolved.add(key)
+            ruling = self.resolved.get(key)
+            if ruling is None:
+                if own_distance <= c.distance:
+                    ruling = Ruling(self.position, self.name, c.name)
+                else:
+                    ruling = Ruling(self.position, c.name, self.name)
+                self.resolved[key] = ruling
                 self.conflicts_initiated += 1
             rulings.append(ruling)
             if ruling.loser == self.name:

@@ -318,8 +318,7 @@ class Assignment:
         if not conflicts:
             return False, False
         rulings, waiting = self.book.negotiate(self.distance(p), conflicts)
-        for r in rulings:
-            self.rulings_out.pop((r.position, r.loser, r.winner), None)  # a reversed ruling withdraws the old one
+        for r in rulings:  # a ruling is final (RoleBook.negotiate): repeated, never reversed
             self.rulings_out[(r.position, r.winner, r.loser)] = t
         if any(r.loser == self.name for r in rulings):
             return False, True

@@ -151,8 +151,8 @@ def test_negotiation_initiator_and_ties():
 def test_a_ruling_is_final_when_the_distances_change():
     """The initiator repeats its ruling: made again from the distances of a later step it
     would go the other way here, after the loser has already left on the first one, and
-    the position would be left empty (docs/journal/measurements.md, rulings are final
-    (W16))."""
+    the position would be left empty (docs/reference/controllers-notes.md, ruling of the
+    negotiation is final (N9); the pair and distances of E6.1 with the one-hop exchange)."""
     book = RoleBook("r13", 12, 10)
     book.claim(9)
     rulings, _ = book.negotiate(0.887, book.conflicts([Claim("r9", 8, 9, 0.891)]))

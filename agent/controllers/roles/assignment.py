@@ -116,7 +116,7 @@ class RoleBook:
     resolved: dict[tuple[int, str], Ruling] = field(default_factory=dict)
     """(position, other) -> the ruling this robot made on that pair as initiator. A ruling
     is final (Algorithm 6.2, lines 6-14: the loser is dequeued and moves on): it is
-    repeated, never made again from newer distances."""
+    repeated, never made again from newer distances (ruling of the negotiation is final, N9)."""
     won: set[tuple[int, str]] = field(default_factory=set)
     """(position, initiator) pairs where a ruling said this robot won."""
     conflicts_initiated: int = 0
@@ -175,7 +175,8 @@ class RoleBook:
         that ruling: the loser acts on it when it arrives, so a ruling made again from
         the distances of a later step, which may go the other way once both robots have
         moved, would send both away and leave the position empty while every robot counts
-        it taken (docs/journal/roles.md, Rulings are final).
+        it taken (docs/reference/controllers-notes.md, ruling of the negotiation is final
+        (N9)).
 
         Returns
         -------

@@ -46,7 +46,7 @@ _WAKE = ("", None)
 the lockstep wait applies the change at once, not at its next 0.2 s poll. Without it a
 restart from the zygote (0.2-0.3 s) could land in the same poll as the loss, and the
 simulator recorded ``robot_lost`` and ``robot_rejoined`` at one instant: an outage the
-team never saw (docs/reference/faults.md, "A restart in lockstep")."""
+team never saw (docs/reference/faults.md, "Restart")."""
 
 __all__ = ["SimNode", "main"]
 

@@ -338,13 +338,13 @@ class SimNode:
                 try:
                     name, cmd = self.cmds.get(timeout=min(0.2, max(0.0, deadline - time.monotonic())))
                 except queue.Empty:
-                    cmd = None
-                if cmd is None:  # timed out, or woken by a robot's token going or coming
                     if time.monotonic() >= deadline:
                         for n in sorted(waiting):
                             self.missed[n] += 1
                             self._event("missed_tick", robot=n, k=k)
                         break
+                    continue
+                if cmd is None:  # woken by a robot's token going or coming (_WAKE): apply it, wait on
                     continue
                 if cmd.k != k or name not in waiting or name in self.down:
                     self.stale += 1

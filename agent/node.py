@@ -66,6 +66,7 @@ class AgentNode:
         self.latest_obs: Obs | None = None
         self.peers: collections.deque = collections.deque()
         self.overheard: collections.deque = collections.deque()  # for the safety filter
+        self._awaits_overheard = runtime.awaits_overheard  # acknowledged plans: the barrier counts them too
         self.started = threading.Event()
         self.ended = threading.Event()
         self.wall_t0 = 0.0
@@ -131,8 +132,14 @@ class AgentNode:
                     self._arrived.notify()
 
     def _on_overheard_refused(self, key: str, error: str) -> None:
+        rel = relative_key(key)
+        if len(rel) >= 3 and rel[0] == "peer":
+            self.overheard.append(_Refused(rel[1]))
         if self._also_peer_key(key):
             self._on_peer_refused(key, error)
+        elif not self.inline:
+            with self._arrived:
+                self._arrived.notify()
 
     def _also_peer_key(self, key: str) -> bool:
         hit = self._also_peer.get(key)
@@ -143,6 +150,9 @@ class AgentNode:
     def _on_overheard(self, key: str, rec) -> None:
         if isinstance(rec, PeerEnvelope):
             self.overheard.append(rec)
+            if self._awaits_overheard and not self.inline:  # the barrier waits for it too
+                with self._arrived:
+                    self._arrived.notify()
 
     def _on_overheard_or_peer(self, key: str, rec) -> None:
         self._on_overheard(key, rec)
@@ -243,7 +253,7 @@ class AgentNode:
         deadline = time.monotonic() + self.barrier_timeout_s
         while True:
             with self._arrived:
-                if not self.peers:
+                if not self.peers and not (self._awaits_overheard and self.overheard):
                     left = deadline - time.monotonic()
                     if left <= 0 or self.ended.is_set() or self.inline:
                         late = self.rt.missing(obs.expect)
@@ -280,7 +290,11 @@ class AgentNode:
             else:
                 self.rt.receive(env)
         while self.overheard:
-            self.rt.overhear(self.overheard.popleft())
+            env = self.overheard.popleft()
+            if type(env) is _Refused:
+                self.rt.overheard_refused(env.sender)
+            else:
+                self.rt.overhear(env)
 
     def _first_step(self, obs: Obs, now: float) -> None:
         """Say when this process first stepped; a robot that joined a run in progress also

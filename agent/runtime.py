@@ -40,6 +40,7 @@ from agent.controllers import build_controller, resolve_controller
 from copath.config import ConfigError
 from copath.control import Observation, RobotContext
 from copath.detour import DetourPlanner
+from copath.safety import acknowledged
 from copath.scenario import Scenario
 from copath.wire.keys import Keys
 from copath.wire.messages import Command, Estimate, Event, Obs, PeerEnvelope, Telemetry, to_plain
@@ -138,6 +139,9 @@ class RobotRuntime:
         ``Observation.joined``."""
         self.received_from: dict[str, int] = {}
         """Peer envelopes that arrived from each sender, refused ones included (the lockstep barrier)."""
+        self.overheard_from: dict[str, int] = {}
+        """Overheard envelopes that arrived from each sender (every key), refused ones included: the
+        lockstep barrier with acknowledged plans (:meth:`missing`)."""
         self.cut_off_rule = CutOffRule.for_robot(scenario, name, handles_cut_off)
         controller = build_controller(spec.controller, RobotContext.for_robot(scenario, name))
         self._angles = scenario.sensors.angles() if scenario.sensors.enabled else None
@@ -241,10 +245,23 @@ class RobotRuntime:
         return [] if self.safety is None else self.safety.overhear_subscriptions(self.keys)
 
     # -- between instants -----------------------------------------------------------------
+    @property
+    def awaits_overheard(self) -> bool:
+        """Whether the lockstep barrier waits for every message overheard (acknowledged plans:
+        what the envelopes acknowledge depends on them, so a deterministic run must have them all;
+        the simulator's ``Obs.expect`` then counts every message of each sender)."""
+        return acknowledged(self.scenario.safety)
+
     def overhear(self, env: PeerEnvelope) -> None:
         """Accept an overheard envelope for the safety filter (:meth:`agent.stages.SafetyStage.overhear`)."""
+        self.overheard_from[env.sender] = self.overheard_from.get(env.sender, 0) + 1
         if self.safety is not None:
             self.safety.overhear(env)
+
+    def overheard_refused(self, sender: str) -> None:
+        """An overheard message on ``sender``'s key was refused: arrived, for the barrier."""
+        if sender != self.name and sender in self._team:
+            self.overheard_from[sender] = self.overheard_from.get(sender, 0) + 1
 
     def missing(self, expect: dict[str, int] | None) -> dict[str, int]:
         """Senders (among those this robot listens to) whose messages have not all
@@ -252,6 +269,12 @@ class RobotRuntime:
         if not expect:
             return {}
         out = {}
+        if self.awaits_overheard:
+            for sender, n in expect.items():
+                got = self.overheard_from.get(sender, 0)
+                if sender != self.name and got < n:
+                    out[sender] = n - got
+            return out
         for sender, n in expect.items():
             if sender == self.name or (self.neighbours is not None and sender not in self.neighbours):
                 continue
@@ -321,7 +344,8 @@ class RobotRuntime:
             cmd = self.safety.apply(now, pose, cmd, ranges, self._angles, held, telemetry, self.liveness, pose_t)
         self.counters.steps += 1
         peers, vel = self.envelopes.send(now, pose, cmd, res.messages, self.estimator.position_cov,  # envelopes
-                                         pose_t if pose_t < now else None)
+                                         pose_t if pose_t < now else None,
+                                         self.safety.guard.acks() if self.safety is not None else None)
         if self.safety is not None and peers:  # committed plans: the filter keeps what it published
             self.safety.published(pose_t, pose, vel)
         self._last_cmd = cmd

@@ -177,6 +177,12 @@ class SafetyConfig:
     commit_horizon_s: float = 2.5
     """Committed plans: how long each published plan is kept [s] (chosen: above the largest
     age of information at 1 s of delay and 50 % loss in the measured runs)."""
+    acknowledge_plans: bool = False
+    """Committed plans: every envelope acknowledges the plans its filter holds, and a robot keeps
+    no plan older than every robot that may hold one has acknowledged (docs/reference/safety.md,
+    "Acknowledged plans"; lockstep runs then also wait for every overheard message). Off by
+    default (chosen: on, E5.4 with r1 killed at 10 s lost its column, 90 -> 8 % of the progress
+    without the kill; docs/journal/faults.md, "Acknowledged plans")."""
     command_lag_periods: float | None = None
     """How many control periods one command may drive, and how late after its stamp a sent
     velocity may take effect: the filter's gain is gamma / L, its braking rows hold a speed
@@ -593,6 +599,14 @@ _COS_DIR = math.cos(math.pi / 6)  # |x| <= max_k c_k^T x / cos(pi / 6) for the s
 
 _OCTAGON = np.array([[math.cos(a), math.sin(a)] for a in np.arange(4) * math.pi / 4])
 _COS8 = math.cos(math.pi / 8)
+
+
+def acknowledged(cfg: SafetyConfig) -> bool:
+    """Whether robots acknowledge each other's committed plans (``safety.acknowledge_plans`` with
+    committed plans, overheard): then a lockstep robot waits for every message it overhears, as
+    its envelopes' acknowledgements depend on them (``Obs.expect`` counts every message of each
+    sender; docs/reference/safety.md, "Acknowledged plans")."""
+    return bool(cfg.enabled and cfg.overhear and cfg.commit_accel_mps2 is not None and cfg.acknowledge_plans)
 
 
 class SafetyFilter:
@@ -1139,6 +1153,7 @@ class SafetyGuard:
         rows = per_robot * (len(models) - 1) + (sensor_count if cfg.use_ranges else 0) * (1 if omni else 2)
         self._config = cfg
         self._commit = cfg.commit_accel_mps2 is not None
+        self._ack = self._commit and cfg.acknowledge_plans
         if self._commit:  # one tube row per plan still kept
             rows += int(math.ceil(cfg.commit_horizon_s / dt)) + 1
         self.filter = SafetyFilter(cfg, own, dt, capacity=rows, lag_periods=config.lag_periods)
@@ -1180,6 +1195,10 @@ class SafetyGuard:
         once when published)."""
         self._ordered = True
         """Whether the plans' stamps rise (then the plans past the horizon are the first ones)."""
+        self._acked: dict[str, float] = {}
+        """Per robot, the time of this robot's plan it says its filter holds (``PeerEnvelope.acks``):
+        no plan older than the oldest of these over the robots that may hold one is kept
+        (:meth:`_ack_floor`; docs/reference/safety.md, "Acknowledged plans")."""
         self.commit_breaks = 0
         """Control instants at which the robot was outside a tube it committed to (the guarantee's
         premise broken; docs/reference/safety.md, "Committed plans")."""
@@ -1227,7 +1246,8 @@ class SafetyGuard:
         return _PlanTubes(plans, now, self._config).arrays() if plans else _NO_TUBES
 
     def _kept(self, now: float) -> list[tuple[float, ...]]:
-        """The plans younger than the horizon at ``now``; the older ones are dropped."""
+        """The plans younger than the horizon at ``now`` (the older ones are dropped) and no older
+        than every robot that may hold one has acknowledged (:meth:`_ack_floor`)."""
         plans = self._plans
         horizon = self._config.commit_horizon_s - 1e-9
         if self._ordered:
@@ -1238,7 +1258,47 @@ class SafetyGuard:
                 del plans[:k]
         elif not all(now - p[0] < horizon for p in plans):
             plans[:] = [p for p in plans if now - p[0] < horizon]
+        # the acknowledged ones: left out, not dropped (a robot back from a loss, unacknowledged,
+        # may hold any plan of the horizon again)
+        floor = self._ack_floor()
+        if plans and plans[0][0] < floor:
+            if self._ordered:
+                k = 1
+                while k < len(plans) and plans[k][0] < floor:
+                    k += 1
+                return plans[k:]
+            return [p for p in plans if p[0] >= floor]
         return plans
+
+    def _ack_floor(self) -> float:
+        """The time of the oldest plan of this robot that a robot's filter may still hold: the
+        oldest acknowledgement over every other filtered robot but the lost ones (a dead
+        process holds nothing; one back from a restart counts again, unacknowledged until it
+        acknowledges). A robot that has acknowledged nothing (never heard, out of range, or back
+        from a loss) may hold any plan younger than the horizon: -inf, the horizon alone
+        (docs/reference/safety.md, "Acknowledged plans")."""
+        if not self._ack:
+            return -math.inf
+        acked, lost, back = self._acked, self._lost_at, self._back_at
+        floor = math.inf
+        for name in self._bounds:
+            if name == self.name or (name in lost and name not in back and name not in self._quiet):
+                continue
+            t = acked.get(name)
+            if t is None:
+                return -math.inf
+            if t < floor:
+                floor = t
+        return floor
+
+    def acks(self) -> dict[str, float] | None:
+        """What this robot's envelopes acknowledge (``PeerEnvelope.acks``): for each robot it has
+        heard, the time its plan held here is dated from (the position's time); None without
+        committed plans or with them unacknowledged (``safety.acknowledge_plans``)."""
+        if not self._ack:
+            return None
+        heard = self._heard
+        return {n: heard[n][2] for n in sorted(heard)}
 
     @property
     def silent_hold_s(self) -> float | None:
@@ -1246,14 +1306,20 @@ class SafetyGuard:
         config's ``silent_hold_s``, None when that is None or longer than ``max_age_s``."""
         return self._silent_hold
 
-    def hear(self, sender: str, position, stamp: float, velocity=None, pos_t: float | None = None) -> None:
+    def hear(self, sender: str, position, stamp: float, velocity=None, pos_t: float | None = None,
+             acks: Mapping[str, float] | None = None) -> None:
         """Remember the newest position (and world velocity (xdot, ydot, thetadot), when the
         message carries it) a robot sent; older stamps are ignored. ``pos_t``: when the position
         was true, if before the stamp (a realtime robot's pose is up to a period older than its
         step; docs/reference/safety.md, "Late commands"): the position and its arc are dated
-        from it."""
+        from it. ``acks``: the sender's acknowledgements (``PeerEnvelope.acks``); the one of this
+        robot's plans is remembered (:meth:`_ack_floor`)."""
         if sender == self.name or sender not in self._bounds:
             return
+        if acks is not None and self._ack:
+            t = acks.get(self.name)
+            if t is not None and t > self._acked.get(sender, -math.inf):
+                self._acked[sender] = float(t)
         last = self._stamps.get(sender)
         if last is None or stamp >= last:
             old = self._heard.get(sender)
@@ -1538,6 +1604,8 @@ class SafetyGuard:
             if name != self.name and name in self._bounds:
                 self._lost_at.setdefault(name, float(now))
                 self._back_at.pop(name, None)
+                if name in lost:  # a process gone: its acknowledgements go with it (a restart holds none)
+                    self._acked.pop(name, None)
         self._quiet = {n for n in self._quiet if n in self._lost_at and n not in lost}
         self._quiet.update(n for n in silent if n != self.name and n in self._bounds)
         gone = set(lost) | set(silent)

@@ -19,6 +19,7 @@ import math
 import numpy as np
 
 from copath.models import OmniModel, UnicycleModel, integrate_body_velocities, wheel_matrix
+from copath.safety import acknowledged
 from copath.scenario import Scenario
 from copath.wire.messages import Obs, Truth
 
@@ -39,6 +40,8 @@ class World:
         self.scenario = scenario
         self.names = list(scenario.robot_names)
         self.models = {r.name: r.model for r in scenario.robots}
+        self._every_message = acknowledged(scenario.safety)
+        """The lockstep barrier counts every message of each sender (acknowledged plans)."""
         n = len(self.names)
         self._P = np.array([r.pose for r in scenario.robots], dtype=float).reshape(n, 3)
         self.poses = {name: self._P[i] for i, name in enumerate(self.names)}  # row views
@@ -147,7 +150,10 @@ class World:
             ranges = [float(v) for v in r]
         expect = None
         if sent is not None:
-            expect = {s: int(c.get("*", 0)) + int(c.get(name, 0)) for s, c in sent.items() if s != name}
+            if self._every_message:  # acknowledged plans: every message each robot sent, overheard
+                expect = {s: sum(int(v) for v in c.values()) for s, c in sent.items() if s != name}
+            else:
+                expect = {s: int(c.get("*", 0)) + int(c.get(name, 0)) for s, c in sent.items() if s != name}
         return Obs(k, float(self.t), pose if type(pose) is list else [float(v) for v in pose], ranges, expect, meas)
 
     def truth(self, k: int) -> Truth:

@@ -37,16 +37,18 @@ class EnvelopeStage:
         """The command the robot applies, for the velocity in its envelopes."""
 
     def send(self, now: float, pose: np.ndarray, command: list[float], messages,
-             cov: list[float] | None, pos_t: float | None = None) -> tuple[list[tuple[str, PeerEnvelope]], list[float]]:
+             cov: list[float] | None, pos_t: float | None = None,
+             acks: dict[str, float] | None = None) -> tuple[list[tuple[str, PeerEnvelope]], list[float]]:
         """(key, envelope) of each outgoing message, and the world velocity they carry;
-        ``pos_t``: when ``pose`` was true, if before ``now`` (else None)."""
+        ``pos_t``: when ``pose`` was true, if before ``now`` (else None); ``acks``: the safety
+        filter's acknowledgements of the plans it holds (committed plans only, else None)."""
         self.applied = limit_change(self.model, self.applied, self.model.saturate(command)[0], self.dt)
         vel = world_velocity_list(self.model, float(pose[2]), self.applied)
         peers = []
         for m in messages:
             self.seq += 1
             env = PeerEnvelope(self.robot, self.seq, float(now), m.kind, [float(pose[0]), float(pose[1])],
-                               to_plain(dict(m.payload)), None if cov is None else list(cov), vel, pos_t)
+                               to_plain(dict(m.payload)), None if cov is None else list(cov), vel, pos_t, acks)
             if m.to is None:
                 peers.append((self.keys.peer_broadcast(self.robot), env))
                 self.sent["*"] += 1

@@ -109,7 +109,7 @@ class SafetyStage:
         """Without overhearing: the envelopes the controller's inbox got at this instant."""
         if self._overhear is None:
             for env in envelopes:
-                self.guard.hear(env.sender, env.pos, env.stamp, env.vel, env.pos_t)
+                self.guard.hear(env.sender, env.pos, env.stamp, env.vel, env.pos_t, env.acks)
 
     def apply(self, now: float, pose: np.ndarray, command: list[float], ranges, angles, held: bool,
               telemetry: dict, liveness: LivenessStage, pose_t: float | None = None) -> list[float]:
@@ -126,7 +126,7 @@ class SafetyStage:
             hear, ranged = self.guard.hear, self._faults.comm_range > 0
             for env in ready:
                 if not ranged or self._faults.in_range(env, pose):
-                    hear(env.sender, env.pos, env.stamp, env.vel, env.pos_t)
+                    hear(env.sender, env.pos, env.stamp, env.vel, env.pos_t, env.acks)
         res = self.guard.apply(pose, command, now, ranges, angles, liveness.lost, liveness.quiet_for_filter(now),
                                pose_t)
         if not held:

@@ -117,6 +117,7 @@ _CHECKS = {
     "distances?": lambda v: v is None or (isinstance(v, list) and all(_distance(e) for e in v)),
     "counts": lambda v: isinstance(v, dict) and all(isinstance(k, str) and _CHECKS["int"](n) for k, n in v.items()),
     "counts?": lambda v: v is None or _CHECKS["counts"](v),
+    "stamps?": lambda v: v is None or (isinstance(v, dict) and all(isinstance(k, str) and _finite(t) for k, t in v.items())),
 }
 
 
@@ -375,6 +376,7 @@ class PeerEnvelope(_Record):
         "cov": "floats?",
         "vel": "floats?",
         "pos_t": "float?",
+        "acks": "stamps?",
     }
     sender: str
     seq: int
@@ -396,11 +398,16 @@ class PeerEnvelope(_Record):
     steps on its own timer with an observation up to a period old (docs/reference/safety.md,
     "Late commands"); None when it is the stamp (lockstep) and in logs written before the
     field existed. The safety filter dates the position (and ``vel``'s arc) from it."""
+    acks: dict[str, float] | None = None
+    """Committed plans only: for each robot whose envelopes the sender's safety filter holds, the
+    time of the plan it holds (that envelope's ``pos_t``, or its stamp), so the robot keeps no
+    older plan (docs/reference/safety.md, "Acknowledged plans"); None without committed plans and
+    in logs written before the field existed."""
 
     @classmethod
     def from_dict(cls, d):
-        if "vel" not in d or "pos_t" not in d:  # written before the fields existed
-            d = {"vel": None, "pos_t": None, **d}
+        if "vel" not in d or "pos_t" not in d or "acks" not in d:  # written before the fields existed
+            d = {"vel": None, "pos_t": None, "acks": None, **d}
         rec = super().from_dict(d)
         validate_payload(rec.kind, rec.payload)
         if len(rec.pos) != 2:
@@ -505,6 +512,7 @@ _FAST_TYPES: dict[str, Any] = {
     "distances?": Optional[list[_DISTANCE]],
     "counts": dict[str, int],
     "counts?": Optional[dict[str, int]],
+    "stamps?": Optional[dict[str, _FINITE]],
 }
 """msgspec's type for each field type of ``_CHECKS``: it accepts a subset of what the check
 accepts (map keys are strings, as msgpack's ``strict_map_key`` wants them at every level)
@@ -513,7 +521,7 @@ and decodes to the same values (ints stay ints)."""
 _FAST_LENGTH = {(PeerEnvelope, "pos"): 2, (PeerEnvelope, "cov"): 3, (PeerEnvelope, "vel"): 3}
 """Fixed list lengths that ``from_dict`` checks after the field types."""
 
-_OPTIONAL_LATER = {(PeerEnvelope, "vel"), (PeerEnvelope, "pos_t")}
+_OPTIONAL_LATER = {(PeerEnvelope, "vel"), (PeerEnvelope, "pos_t"), (PeerEnvelope, "acks")}
 """Fields added after logs were written without them: absent means None."""
 
 
@@ -618,6 +626,8 @@ def unpack(data: bytes | bytearray | memoryview):
                         d["vel"] = None
                     if "pos_t" not in d:
                         d["pos_t"] = None
+                    if "acks" not in d:
+                        d["acks"] = None
                     check = _payload_check(head.kind) if type(head.kind) is str else None
                     if check is None:
                         validate_payload(d["kind"], d["payload"])

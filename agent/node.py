@@ -132,12 +132,13 @@ class AgentNode:
                     self._arrived.notify()
 
     def _on_overheard_refused(self, key: str, error: str) -> None:
-        rel = relative_key(key)
-        if len(rel) >= 3 and rel[0] == "peer":
-            self.overheard.append(_Refused(rel[1]))
+        if self._awaits_overheard:  # arrived, for a barrier that waits for every overheard message
+            rel = relative_key(key)
+            if len(rel) >= 3 and rel[0] == "peer":
+                self.overheard.append(_Refused(rel[1]))
         if self._also_peer_key(key):
             self._on_peer_refused(key, error)
-        elif not self.inline:
+        elif self._awaits_overheard and not self.inline:
             with self._arrived:
                 self._arrived.notify()
 

@@ -139,9 +139,13 @@ class RobotRuntime:
         ``Observation.joined``."""
         self.received_from: dict[str, int] = {}
         """Peer envelopes that arrived from each sender, refused ones included (the lockstep barrier)."""
+        self.awaits_overheard = acknowledged(scenario.safety)
+        """Whether the lockstep barrier waits for every message overheard (acknowledged plans:
+        what the envelopes acknowledge depends on them, so a deterministic run must have them all;
+        the simulator's ``Obs.expect`` then counts every message of each sender)."""
         self.overheard_from: dict[str, int] = {}
-        """Overheard envelopes that arrived from each sender (every key), refused ones included: the
-        lockstep barrier with acknowledged plans (:meth:`missing`)."""
+        """Overheard envelopes that arrived from each sender (every key), refused ones included,
+        counted while :attr:`awaits_overheard` (:meth:`missing`)."""
         self.cut_off_rule = CutOffRule.for_robot(scenario, name, handles_cut_off)
         controller = build_controller(spec.controller, RobotContext.for_robot(scenario, name))
         self._angles = scenario.sensors.angles() if scenario.sensors.enabled else None
@@ -245,22 +249,16 @@ class RobotRuntime:
         return [] if self.safety is None else self.safety.overhear_subscriptions(self.keys)
 
     # -- between instants -----------------------------------------------------------------
-    @property
-    def awaits_overheard(self) -> bool:
-        """Whether the lockstep barrier waits for every message overheard (acknowledged plans:
-        what the envelopes acknowledge depends on them, so a deterministic run must have them all;
-        the simulator's ``Obs.expect`` then counts every message of each sender)."""
-        return acknowledged(self.scenario.safety)
-
     def overhear(self, env: PeerEnvelope) -> None:
         """Accept an overheard envelope for the safety filter (:meth:`agent.stages.SafetyStage.overhear`)."""
-        self.overheard_from[env.sender] = self.overheard_from.get(env.sender, 0) + 1
+        if self.awaits_overheard:
+            self.overheard_from[env.sender] = self.overheard_from.get(env.sender, 0) + 1
         if self.safety is not None:
             self.safety.overhear(env)
 
     def overheard_refused(self, sender: str) -> None:
         """An overheard message on ``sender``'s key was refused: arrived, for the barrier."""
-        if sender != self.name and sender in self._team:
+        if self.awaits_overheard and sender != self.name and sender in self._team:
             self.overheard_from[sender] = self.overheard_from.get(sender, 0) + 1
 
     def missing(self, expect: dict[str, int] | None) -> dict[str, int]:

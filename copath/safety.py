@@ -1298,7 +1298,7 @@ class SafetyGuard:
         if not self._ack:
             return None
         heard = self._heard
-        return {n: heard[n][2] for n in sorted(heard)}
+        return {n: heard[n][2] for n in self._heard_order()}
 
     @property
     def silent_hold_s(self) -> float | None:
@@ -1351,13 +1351,17 @@ class SafetyGuard:
         static disc (:meth:`_held`)."""
         return [nb for _, nb in self.named_neighbours(now)]
 
-    def named_neighbours(self, now: float) -> list[tuple[str, Neighbour]]:
-        """:meth:`neighbours` with each robot's name, in the same order."""
+    def _heard_order(self) -> list[str]:
+        """The robots heard, sorted (sorted again only when one is heard for the first time)."""
         if len(self._order) != len(self._heard):
             self._order = sorted(self._heard)
+        return self._order
+
+    def named_neighbours(self, now: float) -> list[tuple[str, Neighbour]]:
+        """:meth:`neighbours` with each robot's name, in the same order."""
         lost = self._lost_at
         out = []
-        for sender in self._order:
+        for sender in self._heard_order():
             nb = self._held(sender, now) if sender in lost else self._neighbour(sender, now)
             if nb is not None:
                 out.append((sender, nb))
@@ -1443,8 +1447,7 @@ class SafetyGuard:
         by ``SCREEN_EPS``."""
         f = self.filter
         speed, k, lk, zspeed = f._screen_terms(u)
-        if len(self._order) != len(self._heard):
-            self._order = sorted(self._heard)
+        order = self._heard_order()
         cfg = self._config
         lost, heard, static, vels = self._lost_at, self._heard, self._static, self._vel
         commit, horizon, max_age, lag = self._commit, cfg.commit_horizon_s, cfg.max_age_s, self._lag
@@ -1457,7 +1460,7 @@ class SafetyGuard:
         x, y = float(pose[0]), float(pose[1])
         hypot, sqrt = math.hypot, math.sqrt
         exact, skipped = [], []
-        for sender in self._order:
+        for sender in order:
             if sender in lost:
                 nb = self._held(sender, now)
                 if nb is not None:

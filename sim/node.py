@@ -126,6 +126,8 @@ class SimNode:
         self._closing = False
         """``fail``: robots whose token disappeared, when (monotonic); lost after the grace period."""
         self.policy = scenario.run.on_robot_failure
+        self._wakes = scenario.run.clock == "lockstep"
+        """A token's change wakes the lockstep wait (:data:`_WAKE`); the realtime loop polls."""
         self.down: set[str] = set()
         """Robots gone under ``continue`` or ``restart``: held still, not waited for."""
         self._transitions: queue.Queue = queue.Queue()
@@ -172,14 +174,16 @@ class SimNode:
                     logger.warning("robot %s's liveliness token is back", name)
                 if self._started_run and self.policy != "fail":
                     self._transitions.put((name, True))
-                    self.cmds.put(_WAKE)
+                    if self._wakes:
+                        self.cmds.put(_WAKE)
             elif name in self.alive:
                 self.alive.discard(name)
                 if self._started_run and not self._closing and name in self.names:
                     logger.warning("robot %s's liveliness token disappeared", name)
                 if self._started_run and self.policy != "fail":
                     self._transitions.put((name, False))
-                    self.cmds.put(_WAKE)
+                    if self._wakes:
+                        self.cmds.put(_WAKE)
                 elif self._started_run:  # "fail": lost unless it is back within the grace period
                     self._gone_at[name] = time.monotonic()
                 # before the start a robot whose token went is simply waited for again
@@ -381,8 +385,6 @@ class SimNode:
                     name, cmd = self.cmds.get_nowait()
                 except queue.Empty:
                     break
-                if cmd is None:  # a wake-up of the lockstep wait (_WAKE)
-                    continue
                 self.world.command(name, cmd.cmd)
                 self._cmd_at[name] = t
                 self._timed_out.discard(name)

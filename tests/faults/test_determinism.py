@@ -36,9 +36,9 @@ def _payloads(log, run_id):
     return out
 
 
-@pytest.mark.parametrize("scenario,duration", [("e5.5-", "40"), ("e5.2-dmpc-ellipse-triangle", "20")],
+@pytest.mark.parametrize("scenario,duration,rcs", [("e5.5-", "40", (0,)), ("e5.2-dmpc-ellipse-triangle", "20", (0, 3))],
                          ids=["e5.5", "e5.2-acknowledged-plans"])
-def test_two_lockstep_runs_with_the_same_seed_publish_the_same_bytes(tmp_path, scenario, duration):
+def test_two_lockstep_runs_with_the_same_seed_publish_the_same_bytes(tmp_path, scenario, duration, rcs):
     """E5.2's triangle acknowledges its committed plans: its envelopes name what each filter
     overheard, so the barrier waits for every overheard message (docs/reference/safety.md,
     "Acknowledged plans")."""
@@ -46,7 +46,7 @@ def test_two_lockstep_runs_with_the_same_seed_publish_the_same_bytes(tmp_path, s
     for i in range(2):
         out = tmp_path / f"run{i}"
         assert copath(["run", str(config(scenario)), "--out", str(out), "--run-id", "same-seed", "--duration", duration,
-                       "--delay", "100", "--loss", "0.1", "-q", "--no-plots"]) in (0, 3)
+                       "--delay", "100", "--loss", "0.1", "-q", "--no-plots"]) in rcs  # 3: E5.2's 20 s misses a target
         logs.append(_payloads(out / "run.mcap", "same-seed"))
     a, b = logs
     assert set(a) == set(b)

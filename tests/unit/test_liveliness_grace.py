@@ -83,6 +83,7 @@ def test_a_token_change_under_restart_wakes_the_lockstep_wait():
 
     table = scenario_table(3, 0.1, 5.0, 2.0)
     table["run"]["on_robot_failure"] = "restart"
+    table["run"]["clock"] = "lockstep"
     node = SimNode(parse_scenario(table), KEYS, MemoryLink(MemoryBus()))
     for n in node.names:
         node._on_alive(KEYS.alive(n), True)
@@ -92,3 +93,9 @@ def test_a_token_change_under_restart_wakes_the_lockstep_wait():
     assert node.cmds.get_nowait() is _WAKE and node._transitions.get_nowait() == ("r2", False)
     node._on_alive(KEYS.alive("r2"), True)
     assert node.cmds.get_nowait() is _WAKE and node._transitions.get_nowait() == ("r2", True)
+    table["run"]["clock"] = "realtime"  # its loop polls the transitions every physics step: no wake
+    rt = SimNode(parse_scenario(table), KEYS, MemoryLink(MemoryBus()))
+    rt._started_run = True
+    rt._on_alive(KEYS.alive("r2"), True)
+    rt._on_alive(KEYS.alive("r2"), False)
+    assert rt.cmds.empty() and rt._transitions.qsize() == 2

@@ -33,11 +33,32 @@ def test_chaos_takes_scenario_overrides_and_refuses_a_bad_one_naming_it(capsys):
     assert "run.cut_off" in err and "'sideways'" in err and "drive" in err, err
 
 
+def test_chaos_first_fault_comes_after_the_scenarios_settling_time_or_the_warmup_given(capsys):
+    from orchestrator.studies.bench.chaos import MIN_WARMUP_S, prepare
+
+    scen, faults = prepare("e5.4-six-robots-lemniscate", "lockstep", "restart", 10.0, 40, 1)
+    assert scen.run.settle_s == 50.0 and min(f.t for f in faults) >= 50.0  # E5.4's transient
+    assert max(f.t for f in faults) <= 600.0 - 15.0  # the tail before the end stays
+    _, early = prepare("e5.4-six-robots-lemniscate", "lockstep", "restart", 10.0, 40, 1, warmup_s=0.0)
+    assert min(f.t for f in early) < 10.0
+    _, dmpc = prepare("e5.2-dmpc-ellipse-triangle", "lockstep", "restart", 10.0, 40, 1)
+    assert min(f.t for f in dmpc) >= 15.0  # its settle_s
+    a = parser("chaos").parse_args(["--warmup", "20"])
+    assert a.warmup == 20.0 and parser("chaos").parse_args([]).warmup is None
+    assert MIN_WARMUP_S == 10.0
+    with pytest.raises(ValueError, match="warmup_s = 700"):
+        prepare("e5.5-", "lockstep", "restart", 10.0, 3, 1, warmup_s=700)
+    assert copath(["bench", "chaos", "--scenario", "e5.5-", "--minutes", "0.1", "--warmup", "30"]) == 2
+    err = capsys.readouterr().err
+    assert "warmup_s = 30" in err and "below the soak's 6 s" in err, err
+
+
 @pytest.mark.parametrize("argv, words", [
     (["--kinds", "kill,bogus"], ("--kinds", "'bogus'", "allowed", "partition")),
     (["--minutes", "0"], ("--minutes", "'0'", "> 0")),
     (["--faults", "many"], ("--faults", "'many'", "number")),
     (["--policy", "fail"], ("--policy", "'fail'", "restart")),
+    (["--warmup", "-1"], ("--warmup", "'-1'", ">= 0")),
 ])
 def test_chaos_refuses_bad_arguments_naming_them(capsys, argv, words):
     with pytest.raises(SystemExit) as e:

@@ -29,3 +29,23 @@ def test_below_for_good_needs_hold_s_or_the_run_s_end():
 def test_no_live_pair_counts_as_below():
     c = np.full(len(T), np.nan)
     assert _held_below(T, c, 3.0) == 0.0
+
+
+def test_a_stretch_below_that_lasts_until_the_next_fault_counts_as_held():
+    c = np.full(len(T), 0.01)
+    c[(T > 10.0) & (T < 14.0)] = 0.5  # over from the fault's end to 14 s
+    c[T > 17.0] = 0.5  # the next fault, at 17 s, puts it over again
+    assert _held_below(T, c, 10.0) is None  # 3 s below, then over for good
+    assert _held_below(T, c, 10.0, t_next=17.0) == 4.0  # below from 14 s until the next fault
+    c[(T > 15.0) & (T < 15.5)] = 0.5  # over again before the next fault: not held from 14 s
+    assert abs(_held_below(T, c, 10.0, t_next=17.0) - 5.5) < 1e-9
+    # the next fault began before this one ended: the stretches after it are graded as before
+    assert _held_below(T, c, 10.0, t_next=9.0) is None and _held_below(T, c, 10.0) is None
+
+
+def test_the_next_fault_only_ever_ends_a_stretch_early_never_denies_a_later_one():
+    c = np.full(len(T), 0.5)
+    c[T > 25.0] = 0.01  # still over when the next fault begins at 20 s, below for good from 25 s
+    assert abs(_held_below(T, c, 10.0, t_next=20.0) - 15.1) < 1e-9
+    assert _held_below(T, c, 10.0, t_next=20.0) == _held_below(T, c, 10.0)
+

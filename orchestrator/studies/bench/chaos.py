@@ -3,12 +3,14 @@ partitioned over and over on a seeded schedule, graded from its log.
 
     copath bench chaos [--scenario e5.4-] [--clock realtime|lockstep]
                        [--policy restart|continue] [--minutes 10] [--faults 40]
-                       [--seed 1] [--kinds kill,stop,stall,silence,partition]
+                       [--seed 1] [--warmup S] [--kinds kill,stop,stall,silence,partition]
                        [--burst] [--set KEY=VALUE ...] [--inprocess] [--out DIR] [--json]
 
 (or ``python -m orchestrator.studies.bench.chaos`` with the same arguments).
 
-Faults, drawn from ``--seed`` (the same seed gives the same schedule: times, kinds, victims):
+The first fault comes after ``--warmup`` seconds (by default the scenario's ``run.settle_s``, at
+least 10 s: a fault in the start-up transient would grade the transient). Faults, drawn from
+``--seed`` (the same seed gives the same schedule: times, kinds, victims):
 
 - ``kill``: SIGKILL of a robot's process (in one process: ``run_scenario(kills=...)``, and
   under ``restart`` a new one a second later, ``restarts=...``);
@@ -60,6 +62,9 @@ KINDS = ("kill", "stop", "stall", "silence", "partition")
 PROCESS_KINDS = ("kill", "stop", "stall")
 COORD_TOL_M = 0.05
 """Re-coordinated: the live robots' coordination error below this [m] (the issue's goal)."""
+MIN_WARMUP_S = 10.0
+"""The shortest warm-up before the first fault [s] (chosen: the start record, every robot's
+first steps and its first neighbour messages are over by then in every bundled scenario)."""
 HOLD_S = 5.0
 """Re-coordinated for good (``recoord_held_s``): the error stays below :data:`COORD_TOL_M` this
 long [s] (chosen: a third of the schedule's mean gap between faults; an error that builds up
@@ -323,6 +328,7 @@ def grade(records, scenario: Scenario, run_id: str, faults: list[Fault], metrics
         row["_t_f"] = t_f
         rows.append(row)
     coord = _live_coordination(scenario, t, poses, out_masks)
+    starts = sorted(r["_t_f"] for r in rows if r.get("_t_f") is not None)
     for row in rows:
         t_back = row.pop("_t_back", None)
         t_f = row.pop("_t_f", None)
@@ -340,7 +346,12 @@ def grade(records, scenario: Scenario, run_id: str, faults: list[Fault], metrics
         row["coord_before_m"] = round(float(before.max()), 4) if len(before) else None
         ok = np.nonzero((t >= t_back - 1e-9) & (coord < COORD_TOL_M))[0]
         row["recoord_s"] = round(float(t[ok[0]] - t_back), 2) if len(ok) else None
-        row["recoord_held_s"] = _held_below(t, coord, t_back)
+        t_next = next((x for x in starts if x > t_f + 1e-9), None)
+        row["recoord_held_s"] = _held_below(t, coord, t_back, t_next)
+        # held only until the next fault began, not for HOLD_S: counted as held, and said
+        row["held_cut_by_next_fault"] = bool(
+            row["recoord_held_s"] is not None and t_next is not None
+            and t_back + row["recoord_held_s"] + HOLD_S > t_next + 1e-9)
     fleet = metrics.get("fleet", {})
     target = (scenario.raw.get("targets") or {}).get("min_separation_m")
     restarts = [r["restart_to_cmd_s"] for r in rows if r.get("restart_to_cmd_s") is not None]
@@ -370,6 +381,7 @@ def grade(records, scenario: Scenario, run_id: str, faults: list[Fault], metrics
                                               and (r.get("recoord_held_s") is None or r["recoord_held_s"] > 20.0)),
         "recoord_held_over_20s_or_never_settled": sum(1 for r in rows if _settled(r) and (
             r.get("recoord_held_s") is None or r["recoord_held_s"] > 20.0)),
+        "held_cut_by_next_fault": sum(1 for r in rows if r.get("held_cut_by_next_fault")),
         "outage_open": never,
         "deadline_miss_rate": fleet.get("deadline_miss_rate"),
         "ok": metrics.get("ok"),
@@ -378,16 +390,19 @@ def grade(records, scenario: Scenario, run_id: str, faults: list[Fault], metrics
     return {"faults": rows, "totals": totals}
 
 
-def _held_below(t: np.ndarray, coord: np.ndarray, t_back: float) -> float | None:
+def _held_below(t: np.ndarray, coord: np.ndarray, t_back: float, t_next: float | None = None) -> float | None:
     """Seconds from ``t_back`` to the first instant from which the coordination error stays
-    below :data:`COORD_TOL_M` for :data:`HOLD_S` (or to the run's end, if that comes first);
-    None if never. NaN (no live pair) counts as below."""
+    below :data:`COORD_TOL_M` for :data:`HOLD_S`, or until the next fault begins (``t_next``)
+    or the run ends, whichever comes first; None if never. An error that builds up after the
+    next fault has begun is that fault's, graded in its own row (docs/journal/faults.md, "A
+    window ends at the next fault"). NaN (no live pair) counts as below."""
     below = ~(coord >= COORD_TOL_M)  # NaN: no pair to grade
     k = int(np.searchsorted(t, t_back - 1e-9))
+    nxt = len(t) if t_next is None else int(np.searchsorted(t, t_next - 1e-9))  # first instant of the next fault
     bad = np.nonzero(~below[k:])[0] + k  # the instants at or over the tolerance from t_back on
     start = k  # each stretch below begins at t_back or just after an instant over
     for b in (*bad.tolist(), len(t)):
-        if b > start and (b == len(t) or t[b] - t[start] >= HOLD_S - 1e-9):
+        if b > start and (b == len(t) or t[b] - t[start] >= HOLD_S - 1e-9 or start < nxt <= b):
             return round(float(t[start] - t_back), 2)
         start = b + 1
     return None
@@ -410,15 +425,30 @@ class Soak:
     out: pathlib.Path | None = None
 
 
+def warmup_for(scen: Scenario) -> float:
+    """The default warm-up before the first fault [s]: the scenario's own ``run.settle_s`` (the
+    end of its transient, from which its errors are graded), at least :data:`MIN_WARMUP_S`. A
+    fault that hits a team still in its start-up transient grades that transient, not its own
+    return (docs/reference/faults.md, "Chaos soak")."""
+    return max(MIN_WARMUP_S, float(scen.run.settle_s or 0.0))
+
+
 def prepare(scenario: Scenario | str, clock: str, policy: str, minutes: float, n_faults: int, seed: int,
-            kinds=KINDS, burst: bool = False, overrides: list[str] | None = None) -> tuple[Scenario, list[Fault]]:
+            kinds=KINDS, burst: bool = False, overrides: list[str] | None = None,
+            warmup_s: float | None = None) -> tuple[Scenario, list[Fault]]:
+    """The scenario with the soak's run settings and its faults; ``warmup_s`` None:
+    :func:`warmup_for` the scenario."""
     scen = load_scenario(_config(scenario)) if isinstance(scenario, str) else scenario
     if overrides:  # ``--set key=value``: the scenario's own keys, validated as ``copath run --set``
         from orchestrator import api  # noqa: PLC0415
 
         scen = api.load(scen, overrides)
     duration = 60.0 * minutes
-    faults = schedule(list(scen.robot_names), duration, n_faults, seed, kinds)
+    warmup = warmup_for(scen) if warmup_s is None else float(warmup_s)
+    if not 0.0 <= warmup < duration:
+        raise ValueError(f"warmup_s = {warmup_s!r} is not allowed; must be >= 0 and below the soak's "
+                         f"{duration:g} s")
+    faults = schedule(list(scen.robot_names), duration, n_faults, seed, kinds, warmup_s=warmup)
     return with_faults(scen, faults, burst, clock=clock, on_robot_failure=policy, duration_s=duration), faults
 
 
@@ -558,6 +588,18 @@ def _positive(name: str, kind=float):
     return parse
 
 
+def _non_negative(name: str):
+    def parse(text: str):
+        try:
+            v = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{name} = {text!r} is not allowed; must be a number >= 0") from None
+        if not v >= 0:
+            raise argparse.ArgumentTypeError(f"{name} = {text!r} is not allowed; must be >= 0")
+        return v
+    return parse
+
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """The arguments of ``copath bench chaos`` (and ``python -m orchestrator.studies.bench.chaos``)."""
     p.add_argument("--scenario", default="e5.4-", help="scenario file or config prefix [e5.4-]")
@@ -566,6 +608,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--minutes", type=_positive("--minutes"), default=10.0)
     p.add_argument("--faults", type=_positive("--faults", int), default=40)
     p.add_argument("--seed", type=int, default=1)
+    p.add_argument("--warmup", type=_non_negative("--warmup"), default=None, metavar="S",
+                   help="seconds before the first fault [the scenario's run.settle_s, at least 10]")
     p.add_argument("--kinds", type=_kinds, default=KINDS, help=f"comma-separated subset of {','.join(KINDS)}")
     p.add_argument("--burst", action="store_true", help="Gilbert-Elliott loss bursts on every link, all run")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
@@ -585,7 +629,12 @@ def run(a: argparse.Namespace) -> int:
         return 0
     kinds = a.kinds
     clock = "lockstep" if a.inprocess else a.clock
-    scen, faults = prepare(a.scenario, clock, a.policy, a.minutes, a.faults, a.seed, kinds, a.burst, a.set)
+    try:
+        scen, faults = prepare(a.scenario, clock, a.policy, a.minutes, a.faults, a.seed, kinds, a.burst, a.set,
+                               warmup_s=a.warmup)
+    except ValueError as e:
+        print(f"copath bench chaos: {e}", file=sys.stderr)
+        return 2
     t0 = time.monotonic()
     if a.inprocess:
         res = soak_inprocess(scen, faults)

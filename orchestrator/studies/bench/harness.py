@@ -7,6 +7,7 @@
     copath bench latency  [--robots 16] [--messages 100000] [--json]      neighbour latency, recorder rate
     copath bench secure   [--scenario e5.5] [--reps 3] [--json]           cost of secure mode (lockstep)
     copath bench peers    [--robots 6 16] [--reps 1] [--json]             copath against IR-SIM, alternately
+    copath bench floor    [--robots 6] [--ticks 2000] [--fleet] [--json]  the floor of a lockstep fleet vs IR-SIM
     copath bench chaos    [--scenario e5.4-] [--minutes 10] [--json]      chaos soak: faults on a seeded schedule
     copath bench compare-metrics run OUT | compare BEFORE AFTER           in-process metrics key by key
 
@@ -39,6 +40,7 @@ SUBCOMMANDS = {
     "latency": "orchestrator.studies.bench.latency",
     "secure": "orchestrator.studies.bench.secure",
     "peers": "orchestrator.studies.bench.peers",
+    "floor": "orchestrator.studies.bench.floor",
     "chaos": "orchestrator.studies.bench.chaos",
     "compare-metrics": "orchestrator.studies.bench.compare_metrics",
 }

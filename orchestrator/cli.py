@@ -16,7 +16,7 @@ Subcommands (``copath --version``; ``--log-level LEVEL`` before or after the sub
     copath scenarios [--json]
     copath validate CONFIG... [--set KEY=VALUE]...
     copath controllers [NAME...]
-    copath bench solve|dmpc|fleet|scale|latency|secure|peers|chaos|compare-metrics ... [--json]
+    copath bench solve|dmpc|fleet|scale|latency|secure|peers|floor|chaos|compare-metrics ... [--json]
 
 CONFIG is a scenario file, or a bundled scenario by its file stem or its experiment id
 (``copath run e5.5``). Exit codes: 0 done, 1 the run failed, 2 bad input, 3 a target of

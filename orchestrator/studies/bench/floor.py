@@ -23,8 +23,8 @@ robots do nothing, in two ways (docs/journal/performance.md, the floor of the de
      Python thread of its own per subscriber (what ``copath/wire/session.py`` declares);
    - ``direct``: the same callback run on Zenoh's network thread itself
      (``zenoh.handlers.Callback(..., indirect=False)``, marked unstable by zenoh-python);
-   - ``thread``: the callback hands the tick to the main thread through a
-     ``queue.Queue``, which answers (the shape of ``agent/node.py``);
+   - ``thread``: the callback hands every sample to the main thread through a
+     ``queue.Queue``, which answers (``agent/node.py`` hands its observations over so);
    - ``fifo``: no callback; the main thread drains Zenoh's FIFO channel (``recv()``)
      and answers (the receive path without the per-sample Python thread).
 
@@ -99,10 +99,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--puts", type=_count("--puts"), default=1, metavar="P",
                         help="records each agent publishes per tick, the command last [1]")
     parser.add_argument("--overhear", action="store_true",
-                        help="each agent's first record is a broadcast every other agent receives (E5.4's filter overhears all)")
+                        help="each agent's first record is a broadcast every other agent receives "
+                             "(E5.4's filter overhears every robot)")
     parser.add_argument("--no-recorder", action="store_true", help="no subscriber to every key in the router's process")
     parser.add_argument("--fleet", action="store_true",
-                        help="also E5.4 as copath run, idle controller, filter off, with and without messages")
+                        help="also E5.4 as copath run: idle controller, filter and detours off, with and without messages")
     parser.add_argument("--no-irsim", action="store_true", help="leave IR-SIM out (no ratios)")
     parser.add_argument("--timeout", type=float, default=300.0, metavar="S", help="give up a bare run after this [300]")
     parser.add_argument("--json", action="store_true", help="print JSON instead of the table")
@@ -143,11 +144,8 @@ def _agent(endpoint: str, prefix: str, index: int, warmup: int, ticks: int, rece
         acct: dict[str, float] = {}
         done = threading.Event()
 
-        heard = [0]
-
         def answer(payload: bytes) -> None:
             if payload[8:9] == b"p":  # a neighbour's broadcast: received, nothing else
-                heard[0] += 1
                 return
             k = int.from_bytes(payload[:8], "little")
             if k == warmup:
@@ -166,12 +164,13 @@ def _agent(endpoint: str, prefix: str, index: int, warmup: int, ticks: int, rece
             f"{prefix}/alive/sim", history=True,
             handler=lambda s: sim_gone.set() if s.kind == zenoh.SampleKind.DELETE else None))
         if receive in ("callback", "direct"):
-            def on_sample(s):
+            def on_sample(s) -> None:
                 answer(s.payload.to_bytes())
-            handler = zenoh.handlers.Callback(on_sample, indirect=receive == "callback")
-            decls.append(session.declare_subscriber(key, handler))
+
+            indirect = receive == "callback"  # False: on Zenoh's network thread
+            decls.append(session.declare_subscriber(key, zenoh.handlers.Callback(on_sample, indirect=indirect)))
             if overhear:
-                decls.append(session.declare_subscriber(peers, zenoh.handlers.Callback(on_sample, indirect=receive == "callback")))
+                decls.append(session.declare_subscriber(peers, zenoh.handlers.Callback(on_sample, indirect=indirect)))
             decls.append(session.liveliness().declare_token(token))
             done.wait()
         elif receive == "thread":

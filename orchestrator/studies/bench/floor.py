@@ -378,7 +378,7 @@ def _table(result: dict[str, Any]) -> None:
         ("sim_cpu_ms_per_tick", "sim CPU ms/tick", ".3f"), ("agent_cpu_ms_per_tick", "agent CPU ms/tick", ".3f"),
         ("router_cpu_s", "router CPU s", ".2f"), ("load_1min", "load", ".2f")])
     if result.get("fleet"):
-        print("idle E5.4 fleet (copath run's path; constant command, safety filter off)")
+        print("idle E5.4 fleet (copath run's path; constant command, safety filter and detours off)")
         print_table(result["fleet"], [
             ("message", "message", ""), ("fleet_sim_s", "sim s", ".1f"), ("startup_s", "startup s", ".2f"),
             ("fleet_wall_s", "fleet s", ".2f"), ("ticking_rtf", "rtf ticking", ".1f"), ("over_irsim", "/ IR-SIM", ".2f"),

@@ -6,8 +6,8 @@ metrics of a run are computed from the simulator's true poses with it):
 - :func:`track_coordinate`: the path coordinate s(t) of a sequence of positions, i.e. the
   projection of each position onto the path, searched near the previous one so that it
   stays continuous where a curve crosses itself (the lemniscate (5.9) at its centre) and
-  counts laps on closed paths, and re-acquired from the whole path when the position is
-  far off the stretch followed and another is markedly nearer;
+  counts laps on closed paths; far off the stretch followed, it moves to another stretch
+  that is markedly nearer and along which the position is travelling;
 - :func:`offset_points`: points o(s) = r(s) + q n(s) at lateral offset q (5.10), (A.1);
 - :func:`switching_offsets`: along-track and lateral slot offsets of a robot whose slot
   moves with the quintic (5.1)-(5.3) at scheduled formation switches (Sec. 6.2.4);
@@ -77,13 +77,13 @@ def track_coordinate(path: Path, xy, window: float = 0.5, resolution: float = 0.
         A sample farther than this [m] from its windowed projection is off the stretch of
         path being followed, and the whole path is searched as well (see Notes).
     margin : float
-        ... and the nearest point of the whole path is taken instead when it is nearer than
-        the windowed one by more than this [m] (hysteresis where two stretches are about as
-        near, e.g. across the middle of a lobe).
+        The nearest point of the whole path replaces the windowed one only when it is
+        nearer by more than this [m] (hysteresis where two stretches are about as near,
+        e.g. across the middle of a lobe).
     ambiguity : float
         On a closed path that point is reached the shorter way round (its lap is the one
         nearest the windowed projection), and only when the shorter way is shorter than
-        half the period by more than this [m]; otherwise the windowed projection is kept.
+        half the period by more than this [m].
 
     Returns
     -------
@@ -95,18 +95,21 @@ def track_coordinate(path: Path, xy, window: float = 0.5, resolution: float = 0.
     Notes
     -----
     Within ``reach`` of the stretch it follows, the windowed search is the continuous
-    projection through the tube about that stretch, and it alone is used: a robot on its
-    lane, or holding a lateral offset q (5.10) below ``reach``, keeps its branch through a
-    crossing. Farther out the window is no guide: it follows the nearest point of one
-    stretch, which can slide along it against the robot's motion. A robot held off the
-    lemniscate's lane cut across the lobe to the crossing and on along the other branch; the
-    window slid back to the crossing on the first branch and the truth's coordinate lost a
-    lap (12.06 m) while the robot drove forward (docs/journal/faults.md, "A grading
-    artefact, not a lost robot"; docs/reference/metrics.md, "M1 — Path coordinate of a true
-    position"). The robot's direction of travel cannot tell the branch there (it crossed
-    the lobe at right angles to both branches, and a held robot has none), so the nearer
-    stretch does, the shorter way round; near the crossing, where the two ways differ by
-    less than 2 ``ambiguity`` (about 2 |q| for a robot offset by q there), no jump is made.
+    projection through the tube about that stretch and is used alone: a robot on its lane
+    keeps its branch through a crossing. Farther out it follows the nearest point of one
+    stretch, which can slide along it against the robot's motion: a robot held off the
+    lemniscate's lane cut across the lobe to the crossing and on along the other branch,
+    the window slid back along the first branch and the truth's coordinate lost a lap
+    (12.06 m) while the robot drove forward (docs/journal/faults.md, "A grading artefact, not
+    a lost robot"; docs/reference/metrics.md, "M1 — Path coordinate of a true position").
+    So, off the stretch followed, the coordinate moves to the nearest point of the whole
+    path when three things hold: it is nearer by ``margin``; the robot's displacement since
+    the last sample runs farther along the tangent there than along the tangent of the
+    stretch followed (its direction of travel: a robot holding a lateral offset q (5.10)
+    moves along its own stretch and keeps it where it passes close to another branch, and
+    a robot held still keeps its coordinate); and, on a closed path, the shorter way round
+    is not within ``ambiguity`` of half a lap (next to a crossing both ways are about
+    L/2, and no jump is made).
     """
     xy = np.asarray(xy, dtype=float).reshape(-1, 2)
     T = len(xy)
@@ -135,26 +138,33 @@ def track_coordinate(path: Path, xy, window: float = 0.5, resolution: float = 0.
            else np.concatenate([np.repeat(P[:1], w, 0), P, np.repeat(P[-1:], w, 0)]))
     reach2 = reach * reach
     half = (0.5 * L - ambiguity) / h  # the longest jump round a closed path [table steps]
+    tangent = None  # unit tangents of the table, made when first needed
     for k in range(first, T):
         r = i % n if path.closed else i  # an open path's i is a table index already
         d = pad[r:r + 2 * w + 1] - xy[k]
         dd = np.einsum("ij,ij->i", d, d)
         j = int(np.argmin(dd))
         i = i - w + j if path.closed else min(max(i - w + j, 0), n - 1)
-        if dd[j] > reach2:  # off the stretch followed: the nearest point of the whole path
-            i = _reacquire(P, xy[k], i, float(np.sqrt(dd[j])) - margin, n if path.closed else 0, half)
+        if dd[j] > reach2 and k > 0:  # off the stretch followed: the whole path is searched
+            if tangent is None:
+                th = path.frame(grid)[2]
+                tangent = np.column_stack([np.cos(th), np.sin(th)])
+            i = _reacquire(P, tangent, xy[k], xy[k] - xy[k - 1], i, float(np.sqrt(dd[j])) - margin,
+                           n if path.closed else 0, half)
         idx[k] = i
     return refine_coordinate(path, xy, idx * h if path.closed else grid[idx], h)
 
 
-def _reacquire(P: np.ndarray, p: np.ndarray, i: int, nearer: float, n: int, half: float) -> int:
+def _reacquire(P: np.ndarray, tangent: np.ndarray, p: np.ndarray, dp: np.ndarray, i: int, nearer: float,
+               n: int, half: float) -> int:
     """Table index of the point of ``P`` nearest to ``p`` when it is nearer than ``nearer``
-    [m] and, on a closed path (``n`` its table length, 0 for an open one), no more than
-    ``half`` table steps the shorter way round from the windowed index ``i``; else ``i``."""
+    [m], the displacement ``dp`` since the last sample runs farther along its ``tangent`` than
+    along the windowed index ``i``'s, and, on a closed path (``n`` its table length, 0 for an
+    open one), it is no more than ``half`` table steps the shorter way round from ``i``; else ``i``."""
     d = P - p
     dd = np.einsum("ij,ij->i", d, d)
     g = int(np.argmin(dd))
-    if nearer <= 0.0 or dd[g] >= nearer * nearer:
+    if nearer <= 0.0 or dd[g] >= nearer * nearer or dp @ tangent[g] <= dp @ tangent[i % len(P)]:
         return i
     if not n:
         return g

@@ -17,7 +17,7 @@ from agent.controllers.consensus.controller import ConsensusController
 from agent.controllers.consensus.geometry import consensus_geometry
 from copath.control import controller
 from copath.config import from_table
-from copath.paths import circle, lemniscate, line
+from copath.paths import circle, eight_curve, lemniscate, line
 from copath.scenario import load_scenario
 from copath.slots import offset_points, solve_coordinate, switching_offsets, track_coordinate, wrap_near
 from orchestrator.run.inprocess import run_scenario
@@ -27,8 +27,8 @@ LIAR_OFFSET = 1.0
 """The lying robot keeps a column slot this far [m] ahead of the scenario's."""
 
 
-def test_track_coordinate_keeps_its_branch_through_the_lemniscate_crossing():
-    path = lemniscate(2.3)
+@pytest.mark.parametrize("path", [lemniscate(2.3), eight_curve()], ids=["lemniscate", "eight"])
+def test_track_coordinate_keeps_its_branch_through_the_lemniscate_crossing(path):
     s_true = np.linspace(-1.0, 1.6 * path.length, 1500)  # crosses the centre three times
     rng = np.random.default_rng(3)
     xy = path.pos(s_true) + rng.normal(0.0, 0.03, (len(s_true), 2))  # 3 cm of position noise
@@ -63,6 +63,79 @@ def test_track_coordinate_from_a_known_coordinate_takes_the_right_branch_at_the_
     assert np.allclose(track_coordinate(path, path.pos(s_true), s0=b), s_true, atol=1e-3)
     laps = s_true + 3 * path.length
     assert np.allclose(track_coordinate(path, path.pos(laps), s0=laps[0]), laps, atol=1e-3)
+
+
+def _polyline(points, step: float) -> np.ndarray:
+    """Positions every ``step`` [m] along straight segments through ``points`` (first left out)."""
+    out = []
+    for a, b in zip(points[:-1], points[1:]):
+        a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+        k = max(1, int(np.ceil(np.hypot(*(b - a)) / step)))
+        out.append(a + (b - a) * (np.arange(1, k + 1) / k)[:, None])
+    return np.concatenate(out)
+
+
+def test_track_coordinate_of_a_robot_that_cut_across_a_lobe_to_the_crossing_loses_no_lap():
+    """docs/journal/faults.md, "A grading artefact, not a lost robot": a robot on the
+    lemniscate's lane into the left lobe is held 0.4 m inside the lobe, then drives forward
+    across the lobe to the crossing and on along the other branch back onto its lane. The
+    window alone slides back along the first branch and loses a lap; the coordinate must go
+    forward to the lane's s."""
+    path = lemniscate(2.3)
+    step = 0.025  # [m] per sample, 0.25 m/s at 0.1 s
+    lane_in = np.arange(3.6, 4.5, step)  # just past the crossing (at L/4 = 3.015 m)
+    held = offset_points(path, np.array([lane_in[-1]]), -0.4)[0]  # q < 0: inside the lobe
+    across = _polyline([held, (-1.06, 0.08), (-0.6, 0.15), (-0.2, 0.0), path.pos(10.0)], step)
+    lane_out = np.arange(10.0, 11.5 + 1e-9, step)  # the other branch, 1 m past the crossing (3L/4)
+    xy = np.concatenate([path.pos(lane_in), _polyline([path.pos(lane_in[-1]), held], step),
+                         np.repeat(held[None], 100, 0), across, path.pos(lane_out)])
+    window_only = track_coordinate(path, xy, reach=np.inf)
+    assert window_only[-1] == pytest.approx(lane_out[-1] - path.length, abs=1e-6)  # the defect: a lap lost
+    s = track_coordinate(path, xy)
+    assert np.allclose(s[:len(lane_in)], lane_in, atol=1e-6)
+    assert np.allclose(s[-len(lane_out):], lane_out, atol=1e-6)  # back on the lane, no lap lost
+    k = len(xy) - len(lane_out) - len(across)  # held until here, then it drives forward
+    assert np.allclose(s[k - 100:k], lane_in[-1], atol=1e-6)  # held still 0.4 m inside
+    assert np.all(np.diff(s[k - 1:]) > -0.05)  # no sample reads more than 2 samples' driving backward
+    jumps = np.nonzero(np.abs(np.diff(s)) > 0.2)[0]
+    assert len(jumps) == 1 and 3.0 < np.diff(s)[jumps[0]] < 5.0  # once, forward, across the lobe
+
+
+@pytest.mark.parametrize("q", [-0.7, -0.4, 0.4, 0.7])
+def test_track_coordinate_of_a_robot_offset_through_the_crossing_keeps_its_branch(q):
+    """A robot that holds a lateral offset q (5.10) on the lemniscate (radius of curvature
+    0.77 m and more) passes through the other branch near the crossing (beyond ``reach`` from
+    its own stretch for |q| = 0.7 m): it travels along its own stretch, so it keeps it
+    (docs/reference/metrics.md, M1); held still on the way, it keeps its coordinate."""
+    path = lemniscate(2.3)
+    s_true = np.linspace(-1.0, 1.6 * path.length, 1500)
+    xy = offset_points(path, s_true, q)
+    assert np.min(np.hypot(*xy.T)) < abs(q) + 1e-3  # passes the crossing (the origin) within |q|
+    assert np.allclose(track_coordinate(path, xy, s0=s_true[0]), s_true, atol=1e-6)
+    held = np.repeat(xy[700:701], 50, 0)  # held still on the way: no displacement, no jump
+    xy_held = np.concatenate([xy[:700], held, xy[700:]])
+    s = track_coordinate(path, xy_held, s0=s_true[0])
+    assert np.allclose(s[700:750], s_true[700], atol=1e-6) and np.allclose(s[750:], s_true[700:], atol=1e-6)
+
+
+def test_track_coordinate_leaves_a_wrong_branch_taken_at_a_crossing():
+    """A robot starting at the eight's crossing a hair nearer the other branch (the global
+    search at the first sample takes it) and driving along its own: once it is ``reach`` off
+    that branch and travelling along its own, the coordinate moves there (the lap the
+    shorter way round) instead of sliding along the wrong branch until the window meets it."""
+    path = eight_curve()
+    L = path.length
+    s_true = np.arange(0.0, 3.5, 0.02)
+    xy = path.pos(s_true)
+    xy[0] = path.pos(np.array([L / 2 + 0.02]))[0]  # on the other branch, 2 cm past the crossing
+    s = track_coordinate(path, xy)
+    assert s[0] == pytest.approx(0.02 - L / 2, abs=1e-6)
+    err = wrap_near(s - s_true, L)
+    on = np.nonzero(np.abs(err[1:]) < 1e-6)[0][0] + 1  # from here on its own branch
+    assert s_true[on] < 1.5 and np.all(np.abs(err[on:]) < 1e-6)
+    assert np.allclose(s[on:] - s_true[on:], s[-1] - s_true[-1], atol=1e-6)  # one lap, kept
+    window_only = track_coordinate(path, xy, reach=np.inf)
+    assert np.abs(wrap_near(window_only - s_true, L)[np.nonzero(s_true < 3.0)[0][-1]]) > 0.5  # still on the wrong one
 
 
 def test_switching_offsets_and_the_slot_coordinate():

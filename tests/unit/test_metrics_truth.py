@@ -106,7 +106,8 @@ def test_track_coordinate_of_a_robot_offset_through_the_crossing_keeps_its_branc
     """A robot that holds a lateral offset q (5.10) on the lemniscate (radius of curvature
     0.77 m and more) passes through the other branch near the crossing (beyond ``reach`` from
     its own stretch for |q| = 0.7 m): it travels along its own stretch, so it keeps it
-    (docs/reference/metrics.md, M1); held still on the way, it keeps its coordinate."""
+    (docs/reference/metrics.md, path coordinate of a true position (M1)); held still on the
+    way, it keeps its coordinate."""
     path = lemniscate(2.3)
     s_true = np.linspace(-1.0, 1.6 * path.length, 1500)
     xy = offset_points(path, s_true, q)

@@ -317,7 +317,9 @@ def test_pi_consensus_tracks_the_fraction_of_unfinished_robots(seed, team):
             break
     finish = rng.uniform(5.0, 15.0, n)
     finish[rng.integers(n)] = np.inf  # one robot never finishes
-    zs, wbar = _pi_team(A, finish, k_z)
+    # 90 s: on the sparsest 16-robot graphs drawn (algebraic connectivity 0.15-0.30) the
+    # estimates were still 0.022-0.023 off at 60 s (2 of 301 seeds; 0.006-0.011 at 90 s)
+    zs, wbar = _pi_team(A, finish, k_z, T=90.0)
     # after the transient every estimate is within 0.02 of the true fraction 1/n
     np.testing.assert_allclose(zs[-1], 1.0 / n, atol=0.02)
     # while two or more robots are still working, nobody's estimate falls to 0.1 (E6.5's

@@ -104,12 +104,15 @@ def track_coordinate(path: Path, xy, window: float = 0.5, resolution: float = 0.
     a lost robot"; docs/reference/metrics.md, "M1 — Path coordinate of a true position").
     So, off the stretch followed, the coordinate moves to the nearest point of the whole
     path when three things hold: it is nearer by ``margin``; the robot's displacement since
-    the last sample runs farther along the tangent there than along the tangent of the
-    stretch followed (its direction of travel: a robot holding a lateral offset q (5.10)
+    the last sample runs forward along the tangent there, and farther than along the tangent
+    of the stretch followed (its direction of travel: a robot holding a lateral offset q (5.10)
     moves along its own stretch and keeps it where it passes close to another branch, and
-    a robot held still keeps its coordinate); and, on a closed path, the shorter way round
+    a robot held still keeps its coordinate); the point lies ahead, unless the robot is
+    moving backward along the stretch followed (then that stretch is the wrong branch: a
+    robot turning round a disc next to the crossing moves partly along the other branch, and
+    a jump back there took 5 m off its progress); and, on a closed path, the shorter way round
     is not within ``ambiguity`` of half a lap (next to a crossing both ways are about
-    L/2, and no jump is made).
+    L/2, and no jump is made). The paths are followed forward (increasing s).
     """
     xy = np.asarray(xy, dtype=float).reshape(-1, 2)
     T = len(xy)
@@ -159,17 +162,24 @@ def _reacquire(P: np.ndarray, tangent: np.ndarray, p: np.ndarray, dp: np.ndarray
                n: int, half: float) -> int:
     """Table index of the point of ``P`` nearest to ``p`` when it is nearer than ``nearer``
     [m], the displacement ``dp`` since the last sample runs farther along its ``tangent`` than
-    along the windowed index ``i``'s, and, on a closed path (``n`` its table length, 0 for an
-    open one), it is no more than ``half`` table steps the shorter way round from ``i``; else ``i``."""
+    along the windowed index ``i``'s (and forward along it), on a closed path (``n`` its table
+    length, 0 for an open one) no more than ``half`` table steps the shorter way round, and it
+    lies ahead of ``i`` unless ``dp`` runs backward along ``i``'s tangent; else ``i``."""
     d = P - p
     dd = np.einsum("ij,ij->i", d, d)
     g = int(np.argmin(dd))
-    if nearer <= 0.0 or dd[g] >= nearer * nearer or dp @ tangent[g] <= dp @ tangent[i % len(P)]:
+    along_i = float(dp @ tangent[i % len(P)])
+    if nearer <= 0.0 or dd[g] >= nearer * nearer or dp @ tangent[g] <= max(along_i, 0.0):
         return i
-    if not n:
-        return g
-    g += n * int(np.round((i - g) / n))  # the lap nearest the windowed projection
-    return g if abs(g - i) <= half else i
+    if n:
+        g += n * int(np.round((i - g) / n))  # the lap nearest the windowed projection
+        if abs(g - i) > half:
+            return i
+    # back only off a stretch the robot is moving backward along (the one it follows is the
+    # wrong branch): a robot turning round a disc next to the lemniscate's crossing moves
+    # partly along the other branch, and a jump back there took 5 m off its progress
+    # (docs/reference/metrics.md, M1)
+    return g if g > i or along_i < 0.0 else i
 
 
 def refine_coordinate(path, xy: np.ndarray, s: np.ndarray, h: float, steps: int = 4) -> np.ndarray:

@@ -361,3 +361,19 @@ def test_after_an_election_the_truth_follows_the_new_leader():
     unaware = truth_metrics(SimpleNamespace(robots=robots, events=[]), sc)
     assert unaware["leaders"] == [[0.0, "leader"]]
     assert unaware["coordination_error_max_m"] > 1.0 and unaware["formation_error_transition_max_m"] > 1.0
+
+
+def test_track_coordinate_keeps_a_robot_turning_round_a_disc_next_to_the_crossing():
+    """Recorded (tests/data/e54_r2_round_held_r1.json): E5.4's r2 goes round r1's held disc
+    next to the lemniscate's crossing, more than ``reach`` off its lane and turning, so for a
+    few ticks it moves partly along the other branch. The coordinate stays on its own branch
+    and runs forward (its own telemetry: 17.07 m at 80 s); a jump to the other branch, behind
+    it, took 5 m off its progress twice (docs/reference/metrics.md, M1)."""
+    from copath.scenario import load_scenario
+    from orchestrator.testkit.scenarios import config
+
+    rec = json.loads((pathlib.Path(__file__).parents[1] / "data" / "e54_r2_round_held_r1.json").read_text())
+    path = load_scenario(config("e5.4-six-robots-lemniscate")).paths["main"]
+    s = track_coordinate(path, np.array(rec["xy"]), s0=rec["s0"])
+    assert np.diff(s).min() > -0.05  # never back by more than a tick's jitter
+    assert 12.5 < s[-1] < 12.9  # 4.7 m in 28 s, at most 0.2 m/s

@@ -178,7 +178,7 @@ def _reacquire(P: np.ndarray, tangent: np.ndarray, p: np.ndarray, dp: np.ndarray
     # back only off a stretch the robot is moving backward along (the one it follows is the
     # wrong branch): a robot turning round a disc next to the lemniscate's crossing moves
     # partly along the other branch, and a jump back there took 5 m off its progress
-    # (docs/reference/metrics.md, M1)
+    # (docs/reference/metrics.md, path coordinate of a true position (M1))
     return g if g > i or along_i < 0.0 else i
 
 

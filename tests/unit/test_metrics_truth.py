@@ -368,7 +368,7 @@ def test_track_coordinate_keeps_a_robot_turning_round_a_disc_next_to_the_crossin
     next to the lemniscate's crossing, more than ``reach`` off its lane and turning, so for a
     few ticks it moves partly along the other branch. The coordinate stays on its own branch
     and runs forward (its own telemetry: 17.07 m at 80 s); a jump to the other branch, behind
-    it, took 5 m off its progress twice (docs/reference/metrics.md, M1)."""
+    it, took 5 m off its progress twice (docs/reference/metrics.md, path coordinate of a true position (M1))."""
     from copath.scenario import load_scenario
     from orchestrator.testkit.scenarios import config
 

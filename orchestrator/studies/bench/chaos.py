@@ -57,6 +57,7 @@ from copath.scenario import Scenario, load_scenario
 from copath.slots import track_coordinate, wrap_near
 from copath.wire.keys import Keys
 from copath.wire.messages import Command, Event, Truth
+from orchestrator.studies.bench.harness import number
 
 KINDS = ("kill", "stop", "stall", "silence", "partition")
 PROCESS_KINDS = ("kill", "stop", "stall")
@@ -576,39 +577,15 @@ def _kinds(text: str) -> tuple[str, ...]:
     return kinds
 
 
-def _positive(name: str, kind=float):
-    def parse(text: str):
-        try:
-            v = kind(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{name} = {text!r} is not allowed; must be a number > 0") from None
-        if not v > 0:
-            raise argparse.ArgumentTypeError(f"{name} = {text!r} is not allowed; must be > 0")
-        return v
-    return parse
-
-
-def _non_negative(name: str):
-    def parse(text: str):
-        try:
-            v = float(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{name} = {text!r} is not allowed; must be a number >= 0") from None
-        if not v >= 0:
-            raise argparse.ArgumentTypeError(f"{name} = {text!r} is not allowed; must be >= 0")
-        return v
-    return parse
-
-
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """The arguments of ``copath bench chaos`` (and ``python -m orchestrator.studies.bench.chaos``)."""
     p.add_argument("--scenario", default="e5.4-", help="scenario file or config prefix [e5.4-]")
     p.add_argument("--clock", choices=("realtime", "lockstep"), default="realtime")
     p.add_argument("--policy", choices=("restart", "continue"), default="restart")
-    p.add_argument("--minutes", type=_positive("--minutes"), default=10.0)
-    p.add_argument("--faults", type=_positive("--faults", int), default=40)
+    p.add_argument("--minutes", type=number("--minutes"), default=10.0)
+    p.add_argument("--faults", type=number("--faults", int), default=40)
     p.add_argument("--seed", type=int, default=1)
-    p.add_argument("--warmup", type=_non_negative("--warmup"), default=None, metavar="S",
+    p.add_argument("--warmup", type=number("--warmup", strict=False), default=None, metavar="S",
                    help="seconds before the first fault [the scenario's run.settle_s, at least 10]")
     p.add_argument("--kinds", type=_kinds, default=KINDS, help=f"comma-separated subset of {','.join(KINDS)}")
     p.add_argument("--burst", action="store_true", help="Gilbert-Elliott loss bursts on every link, all run")

@@ -60,7 +60,7 @@ import threading
 import time
 from typing import Any
 
-from orchestrator.studies.bench.harness import emit, print_table, scratch_dir
+from orchestrator.studies.bench.harness import emit, number, print_table, scratch_dir
 
 __all__ = ["add_arguments", "run", "ping", "idle_fleet", "RECEIVE"]
 
@@ -75,28 +75,15 @@ FIFO_CAPACITY = 256
 """Capacity of the FIFO channel in ``fifo`` mode (Zenoh's default)."""
 
 
-def _count(name: str, least: int = 1):
-    """An argparse type: an integer >= ``least``, refused naming the argument and its value."""
-    def parse(text: str) -> int:
-        try:
-            n = int(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{name} = {text!r} is not allowed; must be a whole number") from None
-        if n < least:
-            raise argparse.ArgumentTypeError(f"{name} = {text!r} is not allowed; must be >= {least}")
-        return n
-    return parse
-
-
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--robots", type=_count("--robots"), default=6, metavar="N", help="agent processes [6]")
-    parser.add_argument("--ticks", type=_count("--ticks"), default=2000, metavar="K",
+    parser.add_argument("--robots", type=number("--robots", int, 1, strict=False), default=6, metavar="N", help="agent processes [6]")
+    parser.add_argument("--ticks", type=number("--ticks", int, 1, strict=False), default=2000, metavar="K",
                         help="timed ticks of the bare harness [2000]")
-    parser.add_argument("--warmup", type=_count("--warmup", 0), default=100, metavar="K",
+    parser.add_argument("--warmup", type=number("--warmup", int, 0, strict=False), default=100, metavar="K",
                         help="ticks before the timing starts [100]")
     parser.add_argument("--receive", nargs="+", default=list(RECEIVE), choices=RECEIVE,
                         help="how agents receive a tick, one run each [callback direct thread fifo]")
-    parser.add_argument("--puts", type=_count("--puts"), default=1, metavar="P",
+    parser.add_argument("--puts", type=number("--puts", int, 1, strict=False), default=1, metavar="P",
                         help="records each agent publishes per tick, the command last [1]")
     parser.add_argument("--overhear", action="store_true",
                         help="each agent's first record is a broadcast every other agent receives "

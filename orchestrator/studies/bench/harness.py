@@ -30,7 +30,7 @@ import tempfile
 import time
 from typing import Any, Callable, Iterator, Sequence
 
-__all__ = ["SUBCOMMANDS", "main", "parser", "print_table", "machine", "emit"]
+__all__ = ["SUBCOMMANDS", "main", "parser", "print_table", "machine", "emit", "number"]
 
 SUBCOMMANDS = {
     "solve": "orchestrator.studies.bench.solve",
@@ -45,6 +45,23 @@ SUBCOMMANDS = {
     "compare-metrics": "orchestrator.studies.bench.compare_metrics",
 }
 """``copath bench WHAT``: the module of each subcommand (``add_arguments(parser)``, ``run(args)``)."""
+
+
+def number(name: str, kind: type = float, least: float = 0.0, strict: bool = True) -> Callable[[str], Any]:
+    """An argparse type for the option ``name``: a ``kind`` (float or int) above ``least`` (or at
+    least ``least`` when not ``strict``), refused naming the option, the value and what is allowed."""
+    what = "a whole number" if kind is int else "a number"
+    bound = f"{'>' if strict else '>='} {least:g}"
+
+    def parse(text: str):
+        try:
+            v = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{name} = {text!r} is not allowed; must be {what} {bound}") from None
+        if not (v > least if strict else v >= least):
+            raise argparse.ArgumentTypeError(f"{name} = {text!r} is not allowed; must be {bound}")
+        return v
+    return parse
 
 
 def machine() -> dict[str, Any]:

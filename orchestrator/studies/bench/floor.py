@@ -76,7 +76,8 @@ FIFO_CAPACITY = 256
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--robots", type=number("--robots", int, 1, strict=False), default=6, metavar="N", help="agent processes [6]")
+    parser.add_argument("--robots", type=number("--robots", int, 1, strict=False), default=6, metavar="N",
+                        help="agent processes [6]")
     parser.add_argument("--ticks", type=number("--ticks", int, 1, strict=False), default=2000, metavar="K",
                         help="timed ticks of the bare harness [2000]")
     parser.add_argument("--warmup", type=number("--warmup", int, 0, strict=False), default=100, metavar="K",

@@ -103,16 +103,16 @@ def track_coordinate(path: Path, xy, window: float = 0.5, resolution: float = 0.
     (12.06 m) while the robot drove forward (docs/journal/faults.md, "A grading artefact, not
     a lost robot"; docs/reference/metrics.md, "M1 — Path coordinate of a true position").
     So, off the stretch followed, the coordinate moves to the nearest point of the whole
-    path when three things hold: it is nearer by ``margin``; the robot's displacement since
-    the last sample runs forward along the tangent there, and farther than along the tangent
-    of the stretch followed (its direction of travel: a robot holding a lateral offset q (5.10)
-    moves along its own stretch and keeps it where it passes close to another branch, and
-    a robot held still keeps its coordinate); the point lies ahead, unless the robot is
-    moving backward along the stretch followed (then that stretch is the wrong branch: a
-    robot turning round a disc next to the crossing moves partly along the other branch, and
-    a jump back there took 5 m off its progress); and, on a closed path, the shorter way round
-    is not within ``ambiguity`` of half a lap (next to a crossing both ways are about
-    L/2, and no jump is made). The paths are followed forward (increasing s).
+    path when four things hold: (i) it is nearer by ``margin``; (ii) the robot's displacement
+    since the last sample runs forward along the tangent there, and farther than along the
+    tangent of the stretch followed (its direction of travel: a robot holding a lateral
+    offset q (5.10) moves along its own stretch and keeps it where it passes close to another
+    branch, and a robot held still keeps its coordinate); (iii) on a closed path, the shorter
+    way round is not within ``ambiguity`` of half a lap (next to a crossing both ways are
+    about L/2, and no jump is made); (iv) the point lies ahead, unless the robot is moving
+    backward along the stretch followed (then that stretch is the wrong branch: a robot
+    turning round a disc next to the crossing moves partly along the other branch, and a
+    jump back there took 5 m off its progress). The paths are followed forward (increasing s).
     """
     xy = np.asarray(xy, dtype=float).reshape(-1, 2)
     T = len(xy)

@@ -45,9 +45,13 @@ def test_chaos_first_fault_comes_after_the_scenarios_settling_time_or_the_warmup
     assert min(f.t for f in dmpc) >= 15.0  # its settle_s
     a = parser("chaos").parse_args(["--warmup", "20"])
     assert a.warmup == 20.0 and parser("chaos").parse_args([]).warmup is None
-    assert MIN_WARMUP_S == 10.0
+    # a scenario that settles at once still waits MIN_WARMUP_S for its first fault
+    _, quick = prepare("e5.5-", "lockstep", "restart", 10.0, 40, 1, overrides=["run.settle_s=0"])
+    assert MIN_WARMUP_S <= min(f.t for f in quick) < MIN_WARMUP_S + 15.0
     with pytest.raises(ValueError, match="warmup_s = 700"):
         prepare("e5.5-", "lockstep", "restart", 10.0, 3, 1, warmup_s=700)
+    with pytest.raises(ValueError, match=r"the warm-up \(the scenario's run.settle_s\) = 30 .* below the soak's 24 s"):
+        prepare("e5.5-", "lockstep", "restart", 0.4, 3, 1)  # E5.5 settles at 30 s
     assert copath(["bench", "chaos", "--scenario", "e5.5-", "--minutes", "0.1", "--warmup", "30"]) == 2
     err = capsys.readouterr().err
     assert "warmup_s = 30" in err and "below the soak's 6 s" in err, err

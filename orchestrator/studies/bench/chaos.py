@@ -447,8 +447,8 @@ def prepare(scenario: Scenario | str, clock: str, policy: str, minutes: float, n
     duration = 60.0 * minutes
     warmup = warmup_for(scen) if warmup_s is None else float(warmup_s)
     if not 0.0 <= warmup < duration:
-        raise ValueError(f"warmup_s = {warmup_s!r} is not allowed; must be >= 0 and below the soak's "
-                         f"{duration:g} s")
+        key = "warmup_s" if warmup_s is not None else "the warm-up (the scenario's run.settle_s)"
+        raise ValueError(f"{key} = {warmup:g} is not allowed; must be >= 0 and below the soak's {duration:g} s")
     faults = schedule(list(scen.robot_names), duration, n_faults, seed, kinds, warmup_s=warmup)
     return with_faults(scen, faults, burst, clock=clock, on_robot_failure=policy, duration_s=duration), faults
 

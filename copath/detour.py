@@ -90,6 +90,11 @@ class DetourConfig:
     pass_detours: bool = True
     """Whether a robot that has detoured, and whose command the safety filter keeps cutting behind
     a live teammate on its lane, goes round that teammate (restores a column's order)."""
+    restart_wait_s: float = 2.0
+    """Under ``run.on_robot_failure = "restart"``: a robot just lost is waited for this long before its
+    held disc blocks the lane; the safety filter keeps the robot out of the disc meanwhile (a
+    killed process back commanding in 0.2-0.35 s, a frozen one in 1.2-1.35 s in the realtime soaks,
+    docs/reference/detours.md, "A robot the fleet restarts")."""
     pressed_share: float = 0.5
     """Share of the steps of the last ``stall_s`` with the filter acting that counts as held back."""
 

@@ -39,6 +39,12 @@ class DetourStage:
         self._lease = float(scenario.run.lease_s)
         self._held_at: float | None = None
         """The last instant the runtime held this robot still (cut off) [s]."""
+        self._wait = (planner.config.restart_wait_s
+                      if planner is not None and scenario.run.on_robot_failure == "restart" else 0.0)
+        """How long a robot just lost is waited for before its held disc blocks the lane [s]: its
+        process is restarted under ``restart`` (docs/reference/detours.md, "A robot the fleet restarts")."""
+        self._lost_since: dict[str, float] = {}
+        """Each robot lost now (its token gone) and since when, as this stage saw it [s]."""
         self._interventions = 0
         """The safety filter's count of changed commands at the last step."""
         self._stretch: tuple[float, float, float] | None = None
@@ -57,6 +63,8 @@ class DetourStage:
         # deafness: until it has listened for a lease, their held discs are not blocks
         deaf = self._held_at is not None and now - self._held_at <= self._lease
         quiet = liveness.quiet_for_filter(now) if safety is not None else frozenset()
+        since = self._lost_since = {r: self._lost_since.get(r, now) for r in liveness.lost}
+        lost = frozenset(r for r, t0 in since.items() if now - t0 >= self._wait - 1e-9)
         if safety is not None and (ranges is not None or liveness.lost or quiet
                                    or planner.plan is not None or planner.stalled(now)
                                    or planner.held_back(now)):
@@ -64,7 +72,7 @@ class DetourStage:
             # learns of a return in its own stage, after this one, and a robot restarted this very
             # tick was once planned round as a disc grown for its outage (an E5.4 soak: a 0.81 m
             # detour, the column out of order for a minute; docs/journal/faults.md, "Chaos soak, realtime")
-            gone = liveness.lost | quiet
+            gone = lost | quiet
             for name, nb in safety.guard.named_neighbours(now):  # held discs, and live ones to tell teammates in the ring
                 spread = nb.spread if nb.spread is not None else nb.speed_max * nb.age
                 peers.append((nb.position[0], nb.position[1], nb.radius + (0.0 if nb.held else spread),
@@ -75,7 +83,7 @@ class DetourStage:
                     self._positions[m.sender] = (m.position[0], m.position[1], m.stamp)
             for r, (x, y, stamp) in self._positions.items():
                 spread = min(0.5 * max(now - stamp, 0.0), 0.5)
-                peers.append((x, y, self._radii.get(r, 0.0) + spread, r in liveness.lost and not deaf))
+                peers.append((x, y, self._radii.get(r, 0.0) + spread, r in lost and not deaf))
         pressed = False
         if safety is not None:
             pressed = safety.guard.interventions != self._interventions

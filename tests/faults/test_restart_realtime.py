@@ -73,6 +73,12 @@ def test_a_killed_robot_restarts_and_commands_again_over_zenoh(tmp_path, procs, 
     back = [r for _, _, r in log.records if getattr(r, "TYPE", "") == "event" and r.what == "rejoined_stepping"]
     assert [r.source for r in back] == ["r2"]
     assert 0 < back[0].detail["since_process_start_s"] < 20.0  # the orchestrator's rejoin bound
+    # the robots waited for the restart before going round r2's held disc (docs/reference/detours.md,
+    # "A robot the fleet restarts"): no detour round a held robot began within 2 s of the loss
+    early = [(float(r.t), r.source) for _, _, r in log.records
+             if getattr(r, "TYPE", "") == "event" and r.what == "detour_start"
+             and r.detail.get("reason") == "held" and r.t < lost[0] + 1.9]
+    assert early == [], early
     # the accounts survive the kill: nothing lost, the killed process counted to its last record
     f = m["fleet"]
     assert f["messages_lost"] == 0 and f["accounts_reconstructed"] == 1

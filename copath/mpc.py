@@ -117,7 +117,8 @@ logger = logging.getLogger(__name__)
 
 
 QP_OPTIONS: dict[str, dict] = {
-    "qrqp": {"print_iter": False, "print_header": False, "print_info": False, "error_on_fail": False},
+    "qrqp": {"print_iter": False, "print_header": False, "print_info": False, "error_on_fail": False,
+             "max_iter": 50},
     "osqp": {"osqp": {"verbose": False, "eps_abs": 1e-8, "eps_rel": 1e-8, "polish": True},
              "error_on_fail": False},
     "qpoases": {"printLevel": "none", "error_on_fail": False},
@@ -447,7 +448,9 @@ class MPCSolver:
 
                 problem = ca.Function("nlp", [self._w, self._p], [self._f, self._g, self._r]).serialize()
                 # keyed by structure and options, not by robot: robots with the same problem share it
-                key = solver_cache.solver_key(problem, repr(self.config))
+                # and by the QP solver's options, which the saved Function carries but the config does not name
+                key = solver_cache.solver_key(problem, repr(self.config),
+                                              repr(QP_OPTIONS.get(self.config.qp_solver)))
                 return solver_cache.cached_function("nlpsol", key, lambda: self._nlpsol(True))
             return self._nlpsol(use_jit)
         except Exception as exc:  # compiler failure: fall back silently (logged)

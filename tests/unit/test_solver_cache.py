@@ -42,6 +42,19 @@ def test_a_solver_is_compiled_once_then_loaded_with_the_same_answers(cache):
 
 
 @pytest.mark.skipif(not jit_available(), reason="no working C compiler for CasADi's JIT")
+def test_the_qp_solvers_options_are_part_of_the_key(cache, monkeypatch):
+    """The saved solver carries its QP solver's options (:data:`copath.mpc.QP_OPTIONS`), which
+    the config does not name: a change to them builds a new entry instead of loading the old
+    solver (a cap on qrqp's iterations was once invisible on a machine with a warm cache)."""
+    from copath import mpc
+
+    MPCSolver(_ocp(), SolverConfig(jit=True))
+    monkeypatch.setitem(mpc.QP_OPTIONS, "qrqp", {**mpc.QP_OPTIONS["qrqp"], "max_iter": 7})
+    MPCSolver(_ocp(), SolverConfig(jit=True))
+    assert solver_cache.stats["misses"] == 2 and len(list(cache.glob("nlpsol-*.casadi"))) == 2
+
+
+@pytest.mark.skipif(not jit_available(), reason="no working C compiler for CasADi's JIT")
 def test_a_damaged_cache_file_is_rebuilt(cache):
     MPCSolver(_ocp(), SolverConfig(jit=True))
     (path,) = cache.glob("nlpsol-*.casadi")

@@ -152,6 +152,8 @@ class RobotRuntime:
         self._max_range = scenario.sensors.max_range_m if self._angles is not None else 0.0
         self._team = frozenset(scenario.robot_names) - {name}
         self._last_cmd = [0.0] * spec.model.command_size
+        self._rejoin_noted = False
+        """Whether :attr:`joined` has reached the envelope stage (:meth:`EnvelopeStage.rejoined`)."""
 
         self.trust = TrustStage(scenario)
         self.estimator = EstimateStage(scenario, name)
@@ -313,6 +315,11 @@ class RobotRuntime:
         for env in self.trust.advance(now):  # trust
             self.receive(env)
         pose = np.asarray(obs.pose, dtype=float)
+        if self.joined and not self._rejoin_noted:  # a restart: what the base applies is not known yet
+            self._rejoin_noted = True
+            self.envelopes.rejoined()
+        if not self.envelopes.known:
+            self.envelopes.observe(float(obs.t), pose, (obs.meas or {}).get("odom", ()))
         estimate = None
         if obs.meas is not None:  # estimate
             pose, estimate = self.estimator.pose(obs, now, pose, self._last_cmd)

@@ -73,6 +73,18 @@ def test_a_killed_robot_restarts_and_commands_again_over_zenoh(tmp_path, procs, 
     back = [r for _, _, r in log.records if getattr(r, "TYPE", "") == "event" and r.what == "rejoined_stepping"]
     assert [r.source for r in back] == ["r2"]
     assert 0 < back[0].detail["since_process_start_s"] < 20.0  # the orchestrator's rejoin bound
+    # the new process promises nothing until it has seen its base move, then the base's own
+    # velocity (docs/journal/faults.md, "A restarted robot's first promise")
+    envs = sorted((r for _, _, r in log.records if getattr(r, "TYPE", "") == "peer" and r.sender == "r2"
+                   and r.stamp >= back[0].t - 1e-6), key=lambda r: r.stamp)
+    assert envs and envs[0].vel is None, envs[:1]
+    first = next(r for r in envs if r.vel is not None)
+    truth = sorted((r for _, _, r in log.records if getattr(r, "TYPE", "") == "truth"), key=lambda r: r.t)
+    i = next(j for j, r in enumerate(truth) if r.t >= first.stamp)
+    k = truth[i].names.index("r2")
+    (x0, y0, _), (x1, y1, _) = truth[i - 1].poses[k], truth[i].poses[k]
+    speed = ((x1 - x0) ** 2 + (y1 - y0) ** 2) ** 0.5 / (truth[i].t - truth[i - 1].t)
+    assert abs((first.vel[0] ** 2 + first.vel[1] ** 2) ** 0.5 - speed) < 0.05, (first.vel, speed)
     # the robots waited for the restart before going round r2's held disc (docs/reference/detours.md,
     # "A robot the fleet restarts"): no detour round a held robot began within 2 s of the loss
     early = [(float(r.t), r.source) for _, _, r in log.records
@@ -108,6 +120,26 @@ def test_a_killed_robot_restarts_and_commands_again_in_one_process():
     cmds = [r.t for _, k, r in res.records if k.endswith("/robot/r2/cmd")]
     assert max(cmds) > 29.0  # it drives to the end
 
+
+def test_a_robot_restarted_at_once_drives_on_without_braking_its_team():
+    """E5.4, r4 killed at 30 s and back at 30.25 s: the base still drives on what the killed
+    process sent, braked since; the new process takes its velocity from what it sees, so its
+    filter does not brake it to keep a promise made from rest, and the team stays within 0.05 m
+    (0.11 m when its first envelopes promised a robot at rest; docs/journal/faults.md, "A
+    restarted robot's first promise")."""
+    import numpy as np
+
+    from copath.scenario import load_scenario
+    from orchestrator.analysis.truth import truth_series
+    from orchestrator.run.inprocess import run_scenario
+
+    scen = load_scenario(config("e5.4-six-robots-lemniscate")).with_overrides(run={"on_robot_failure": "restart"})
+    res = run_scenario(scen, duration_s=45.0, kills={"r4": [30.0]}, restarts={"r4": [30.25]})
+    assert res.ok and res.metrics["robots"]["r4"]["restarts"] == 1
+    ser = truth_series(res.trace, scen)
+    after = (ser.t >= 30.0) & (ser.t <= 45.0)
+    assert np.nanmax(ser.coordination_error[after]) < 0.05, float(np.nanmax(ser.coordination_error[after]))
+    assert res.metrics["fleet"]["collisions"] == 0
 
 @pytest.mark.fleet
 def test_a_restarted_robot_past_the_rejoin_bound_fails_the_run_loudly(tmp_path, capfd):

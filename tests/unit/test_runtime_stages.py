@@ -5,6 +5,7 @@ sensing.md)."""
 from __future__ import annotations
 
 import dataclasses
+import math
 import pathlib
 import re
 
@@ -16,7 +17,7 @@ from agent.stages import (STAGE_ORDER, ControlStage, Counters, CutOffRule, Envel
                           LivenessStage, TrustStage)
 from copath.config import ConfigError
 from copath.control import Observation, Outgoing, StepResult
-from copath.models import OmniModel
+from copath.models import OmniModel, limit_change, world_velocity_list
 from copath.safety import GuardConfig, SafetyConfig, SafetyGuard
 from copath.scenario import load_scenario
 from copath.wire.keys import Keys
@@ -218,6 +219,40 @@ def test_envelopes_number_each_message_and_count_what_went_to_whom():
     assert [e.seq for _, e in peers] == [1, 2, 2] and stage.sent == {"*": 1, "r1": 1, "r3": 1}
     assert all(e.vel == vel and e.cov is None for _, e in peers) and len(vel) == 3
 
+
+
+@pytest.mark.parametrize("odometry", [False, True])
+def test_a_restarted_robot_promises_nothing_until_it_has_seen_its_base_move(odometry):
+    """A process that joined a run in progress does not know what its base applies (the killed
+    process's command, braked by the simulator since): its envelopes carry no velocity until it
+    has seen the base move, from odometry or two poses, and then the base's velocity, rate-limited
+    towards its own command from there (docs/journal/faults.md, "A restarted robot's first promise")."""
+    scen = _e55()
+    model = scen.robot("r2").model
+    stage = EnvelopeStage(scen, "r2", KEYS)
+    stage.rejoined()
+    msgs = [Outgoing("state", {"s": 1.0})]
+    # the base drives at 0.15 m/s straight ahead along heading pi/2 and turns at 0.1 rad/s
+    v, w, dt = 0.15, 0.1, scen.run.dt
+    th0 = math.pi / 2
+    p0 = np.array([1.0, 2.0, th0])
+    p1 = np.array([1.0 + v * dt * math.cos(th0 + w * dt / 2), 2.0 + v * dt * math.sin(th0 + w * dt / 2), th0 + w * dt])
+    base = [v, w] if model.command_size == 2 else [v, 0.0, w]
+    odom = [[0.0, dt, *base]] if odometry else ()
+    stage.observe(0.0, p0, odom)
+    if not odometry:
+        peers, vel = stage.send(0.0, p0, [0.3] + [0.0] * (model.command_size - 1), msgs, None)
+        assert vel is None and all(e.vel is None for _, e in peers)
+        stage.observe(dt, p1)
+    assert stage.known
+    np.testing.assert_allclose(stage.applied, base, atol=1e-9)
+    peers, vel = stage.send(dt, p1, [0.3] + [0.0] * (model.command_size - 1), msgs, None)
+    expected = limit_change(model, np.asarray(base), model.saturate([0.3] + [0.0] * (model.command_size - 1))[0], dt)
+    assert vel == pytest.approx(world_velocity_list(model, float(p1[2]), expected))
+    assert peers[0][1].vel == vel
+    # a fresh run's robot starts from rest, as before
+    fresh = EnvelopeStage(scen, "r2", KEYS)
+    assert fresh.known and not fresh.applied.any()
 
 # -- the safety filter's config ------------------------------------------------------------------
 def test_the_guard_takes_a_keyword_config_and_names_a_bad_field():

@@ -107,8 +107,13 @@ class LivenessStage:
         if not self.overhearing:
             quiet = frozenset(self._silent)
         else:
+            # an envelope in its own inbox counts as well: a restarted robot's first one can be
+            # delivered in the very step its token is seen back, before the filter overhears it
+            # (an E5.4 soak: r6 began a 0.80 m detour round r5 in that step, docs/journal/faults.md,
+            # "Heard, so not quiet")
+            heard = self._heard
             quiet = frozenset(s for s, t in self._overheard_at.items()
-                              if s not in self.lost and now - t > self.silent_after_s + 1e-9)
+                              if s not in self.lost and now - max(t, heard.get(s, -math.inf)) > self.silent_after_s + 1e-9)
         if not self._returned or not quiet:
             return quiet
         # a robot whose token came back after it was last heard is a process that drives

@@ -134,9 +134,7 @@ class RobotRuntime:
         self.neighbours = spec.neighbours if scenario.network.range_m == 0 else None
         """The robots it listens to (None: every robot, a range-limited graph)."""
         self.counters = Counters()
-        self.joined = False
-        """This process joined a run in progress (a restart; set by the node): the controllers'
-        ``Observation.joined``."""
+        self._joined = False
         self.received_from: dict[str, int] = {}
         """Peer envelopes that arrived from each sender, refused ones included (the lockstep barrier)."""
         self.awaits_overheard = acknowledged(scenario.safety)
@@ -152,8 +150,6 @@ class RobotRuntime:
         self._max_range = scenario.sensors.max_range_m if self._angles is not None else 0.0
         self._team = frozenset(scenario.robot_names) - {name}
         self._last_cmd = [0.0] * spec.model.command_size
-        self._rejoin_noted = False
-        """Whether :attr:`joined` has reached the envelope stage (:meth:`EnvelopeStage.rejoined`)."""
 
         self.trust = TrustStage(scenario)
         self.estimator = EstimateStage(scenario, name)
@@ -167,6 +163,19 @@ class RobotRuntime:
         self.control = ControlStage(controller, name, spec.model.command_size, self.counters)
         self.hold = HoldStage(self.cut_off_rule, spec.model.command_size)
         self.envelopes = EnvelopeStage(scenario, name, keys)
+
+    @property
+    def joined(self) -> bool:
+        """This process joined a run in progress (a restart; set by the node): the controllers'
+        ``Observation.joined``. Set, it tells the envelope stage that what the base applies is not
+        known yet (:meth:`EnvelopeStage.rejoined`)."""
+        return self._joined
+
+    @joined.setter
+    def joined(self, value: bool) -> None:
+        if value and not self._joined:
+            self.envelopes.rejoined()
+        self._joined = bool(value)
 
     # -- what nodes read ------------------------------------------------------------------
     @property
@@ -315,10 +324,7 @@ class RobotRuntime:
         for env in self.trust.advance(now):  # trust
             self.receive(env)
         pose = np.asarray(obs.pose, dtype=float)
-        if self.joined and not self._rejoin_noted:  # a restart: what the base applies is not known yet
-            self._rejoin_noted = True
-            self.envelopes.rejoined()
-        if not self.envelopes.known:
+        if not self.envelopes.known:  # a restart: what the base applies is not known yet
             self.envelopes.observe(float(obs.t), pose, (obs.meas or {}).get("odom", ()))
         estimate = None
         if obs.meas is not None:  # estimate

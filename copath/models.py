@@ -21,6 +21,7 @@ __all__ = [
     "UnicycleModel",
     "integrate_body_velocity",
     "integrate_body_velocities",
+    "body_velocity_between",
     "wheel_matrix",
     "rotation_speed_limit",
     "scale_velocities",
@@ -65,6 +66,24 @@ def integrate_body_velocity(pose, body_vel, dt: float) -> np.ndarray:
         dy_b = (u * (1.0 - ca) + v * sa) / w
     c, s = math.cos(th), math.sin(th)
     return np.array([x + c * dx_b - s * dy_b, y + s * dx_b + c * dy_b, th + a])
+
+
+def body_velocity_between(pose0, pose1, dt: float) -> np.ndarray:
+    """Body velocities (u, v, omega) held constant for ``dt`` that take ``pose0`` to ``pose1``:
+    the exact inverse of :func:`integrate_body_velocity` (what a robot that sees two of its poses
+    can tell of its base's twist; the heading change is taken the short way round)."""
+    x0, y0, th0 = (float(p) for p in pose0)
+    x1, y1, th1 = (float(p) for p in pose1)
+    a = math.remainder(th1 - th0, 2.0 * math.pi)
+    c, s = math.cos(th0), math.sin(th0)
+    dx_b = c * (x1 - x0) + s * (y1 - y0)
+    dy_b = -s * (x1 - x0) + c * (y1 - y0)
+    w = a / dt
+    if abs(a) < 1e-9:
+        return np.array([dx_b / dt, dy_b / dt, w])
+    sa, ca = math.sin(a), math.cos(a)
+    k = w / (2.0 - 2.0 * ca)  # the 2x2 map of integrate_body_velocity, inverted
+    return np.array([k * (sa * dx_b + (1.0 - ca) * dy_b), k * ((ca - 1.0) * dx_b + sa * dy_b), w])
 
 
 def integrate_body_velocities(poses: np.ndarray, body_vels: np.ndarray, dt: float) -> np.ndarray:

@@ -43,8 +43,6 @@ class DetourStage:
                       if planner is not None and scenario.run.on_robot_failure == "restart" else 0.0)
         """How long a robot just lost is waited for before its held disc blocks the lane [s]: its
         process is restarted under ``restart`` (docs/reference/detours.md, "A robot the fleet restarts")."""
-        self._lost_since: dict[str, float] = {}
-        """Each robot lost now (its token gone) and since when, as this stage saw it [s]."""
         self._interventions = 0
         """The safety filter's count of changed commands at the last step."""
         self._stretch: tuple[float, float, float] | None = None
@@ -63,8 +61,10 @@ class DetourStage:
         # deafness: until it has listened for a lease, their held discs are not blocks
         deaf = self._held_at is not None and now - self._held_at <= self._lease
         quiet = liveness.quiet_for_filter(now) if safety is not None else frozenset()
-        since = self._lost_since = {r: self._lost_since.get(r, now) for r in liveness.lost}
-        lost = frozenset(r for r, t0 in since.items() if now - t0 >= self._wait - 1e-9)
+        lost = liveness.lost
+        if self._wait and lost:  # a robot the fleet restarts blocks the lane once lost for the wait
+            at = liveness.lost_at
+            lost = frozenset(r for r in lost if now - at.get(r, now) >= self._wait - 1e-9)
         if safety is not None and (ranges is not None or liveness.lost or quiet
                                    or planner.plan is not None or planner.stalled(now)
                                    or planner.held_back(now)):

@@ -3,12 +3,9 @@
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
-from copath.models import limit_change, world_velocity_list
-from copath.paths import wrap_to_pi
+from copath.models import body_velocity_between, limit_change, world_velocity_list
 from copath.scenario import Scenario
 from copath.wire.keys import Keys
 from copath.wire.messages import PeerEnvelope, to_plain
@@ -66,23 +63,17 @@ class EnvelopeStage:
         n = len(self.applied)
         if odom:
             u = [float(x) for x in odom[-1][2:2 + n]]
+        elif self._seen is None:
+            self._seen = (float(obs_t), np.array(pose, dtype=float))
+            return
+        elif obs_t <= self._seen[0] + 1e-9:
+            return  # the same observation again (a realtime step before the next one came)
         else:
-            pose = np.asarray(pose, dtype=float)
-            if self._seen is None or obs_t <= self._seen[0] + 1e-9:
-                if self._seen is None:
-                    self._seen = (float(obs_t), pose.copy())
-                return
             t0, p0 = self._seen
-            span = float(obs_t) - t0
-            turn = float(wrap_to_pi(pose[2] - p0[2]))
-            mid = float(p0[2]) + 0.5 * turn
-            dx, dy = float(pose[0] - p0[0]), float(pose[1] - p0[1])
-            ahead = (math.cos(mid) * dx + math.sin(mid) * dy) / span
-            side = (-math.sin(mid) * dx + math.cos(mid) * dy) / span
-            u = [ahead, side, turn / span] if n == 3 else [ahead, turn / span]
-        if len(u) == n:
-            self.applied = np.asarray(u, dtype=float)
-            self.known = True
+            uvw = body_velocity_between(p0, pose, float(obs_t) - t0)
+            u = uvw.tolist() if n == 3 else [float(uvw[0]), float(uvw[2])]
+        self.applied = np.asarray(u, dtype=float)
+        self.known = True
 
     def send(self, now: float, pose: np.ndarray, command: list[float], messages,
              cov: list[float] | None, pos_t: float | None = None,

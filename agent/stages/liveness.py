@@ -70,6 +70,8 @@ class LivenessStage:
         is when they were last heard."""
         self._overheard_at: dict[str, float] = {}
         """When an overheard envelope of each sender was last delivered to the filter."""
+        self.lost_at: dict[str, float] = {}
+        """Each robot of :attr:`lost` and the step at which this robot first knew it [s]."""
         self._returned: dict[str, float] = {}
         """When each robot's liveliness token came back (a restarted or resumed process): until
         it is heard again, for a lease at most, it is not quiet for the filter
@@ -163,6 +165,8 @@ class LivenessStage:
         events = [Event(float(now), self.robot, "peer_lost", {"robot": r}) for r in sorted(lost - told)]
         events += [Event(float(now), self.robot, "peer_rejoined", {"robot": r}) for r in sorted(told - lost)]
         self._returned.update(dict.fromkeys(told - lost, float(now)))
+        if lost != told:
+            self.lost_at = {r: self.lost_at.get(r, float(now)) for r in lost}
         for s, t in sorted(self._heard.items()):
             if s in self.lost:  # its token went: lost already, whatever it says
                 continue

@@ -104,7 +104,6 @@ def _recovers(ser, passes, tol: float = 0.05, within: float = 20.0, hold: float 
     assert checked, "no pass ended early enough to check the recovery"
 
 
-
 def _held_detours(res) -> list[tuple[float, str]]:
     return [(round(e.t, 2), e.source) for e in res.trace.events
             if e.what == "detour_start" and e.detail.get("reason") == "held"]
@@ -115,14 +114,12 @@ def test_a_robot_the_fleet_restarts_is_waited_for_and_one_that_stays_lost_is_gon
     """E5.5, r2 killed at 14 s and back at 14.3 s: under ``restart`` r3, behind it, waits for it
     (``restart_wait_s`` = 2 s) and no robot leaves its lane; under ``continue`` r3 goes round r2's
     held disc at once (docs/reference/detours.md, "A robot the fleet restarts")."""
-    from copath.detour import DetourConfig
-
     scen = load_scenario(config("e5.5-column-lemniscate")).with_overrides(run={"on_robot_failure": policy})
     res = run_scenario(scen, duration_s=30.0, kills={"r2": [14.0]}, restarts={"r2": [14.3]})
     assert res.metrics["fleet"]["collisions"] == 0
     held = _held_detours(res)
     if policy == "restart":
-        assert DetourConfig().restart_wait_s == 2.0 and held == []
+        assert held == []
         assert res.metrics["robots"]["r3"]["detours"] == 0
     else:
         assert [who for _, who in held] == ["r3"] and 14.0 < held[0][0] <= 14.3
@@ -136,6 +133,7 @@ def test_a_restart_that_takes_longer_than_the_wait_is_gone_round_after_it():
     held = _held_detours(res)
     assert held and held[0][1] == "r3" and 16.0 <= held[0][0] <= 16.3, held
     assert res.metrics["fleet"]["collisions"] == 0
+
 
 @pytest.mark.slow
 @pytest.mark.parametrize("prefix", ["e5.5-column-box-on-lane", "e5.2-dmpc-obstacle-between-lanes",

@@ -141,6 +141,7 @@ def test_a_robot_restarted_at_once_drives_on_without_braking_its_team():
     assert np.nanmax(ser.coordination_error[after]) < 0.05, float(np.nanmax(ser.coordination_error[after]))
     assert res.metrics["fleet"]["collisions"] == 0
 
+
 @pytest.mark.fleet
 def test_a_restarted_robot_past_the_rejoin_bound_fails_the_run_loudly(tmp_path, capfd):
     """A bound too short for any restart: the robot is lost, with an event, a terminal line,

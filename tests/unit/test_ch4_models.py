@@ -38,7 +38,7 @@ from agent.controllers.unicycle_nmpc.controller import (
     uni_virtual_inputs,
 )
 from copath.config import ConfigError
-from copath.models import OmniModel, integrate_body_velocity, rotation_speed_limit
+from copath.models import OmniModel, body_velocity_between, integrate_body_velocity, rotation_speed_limit
 from copath.mpc import OCP, MPCSolver, PathTable, SolverConfig
 from copath.paths import circle, eight_curve, wrap_to_pi
 
@@ -57,6 +57,18 @@ def eight():
 def _frame(path, s):
     x, y, th, _ = path.frame(s)
     return np.array([x, y, th])
+
+
+@pytest.mark.parametrize("seed", range(20))
+def test_body_velocity_between_inverts_the_exact_step(seed):
+    """(3.1) integrated in closed form over dt, then read back from the two poses: the same twist,
+    straight (omega = 0) or turning, across the heading's wrap at pi."""
+    rng = np.random.default_rng(seed)
+    pose = np.array([*rng.normal(0, 2, 2), rng.choice([np.pi - 0.01, rng.uniform(-np.pi, np.pi)])])
+    body = rng.normal(0, 0.7, 3) * np.array([1, 1, rng.choice([0.0, 1.0])])
+    dt = rng.uniform(0.02, 0.5)
+    np.testing.assert_allclose(body_velocity_between(pose, integrate_body_velocity(pose, body, dt), dt), body,
+                               atol=1e-9)
 
 
 @pytest.mark.parametrize("seed", range(5))

@@ -5,7 +5,6 @@ sensing.md)."""
 from __future__ import annotations
 
 import dataclasses
-import math
 import pathlib
 import re
 
@@ -17,7 +16,7 @@ from agent.stages import (STAGE_ORDER, ControlStage, Counters, CutOffRule, Envel
                           LivenessStage, TrustStage)
 from copath.config import ConfigError
 from copath.control import Observation, Outgoing, StepResult
-from copath.models import OmniModel, limit_change, world_velocity_list
+from copath.models import OmniModel, integrate_body_velocity, limit_change, world_velocity_list
 from copath.safety import GuardConfig, SafetyConfig, SafetyGuard
 from copath.scenario import load_scenario
 from copath.wire.keys import Keys
@@ -159,7 +158,6 @@ def test_with_overhearing_a_robot_overheard_within_the_lease_keeps_it_connected(
     assert live.quiet_for_filter(2.6) == frozenset()  # for the filter, silence is any envelope's
 
 
-
 def test_a_restarted_robot_heard_in_the_step_its_token_returns_is_not_quiet():
     """A frozen robot is silent for the lease, then killed and restarted: its token goes and
     comes back, and its new process's first envelope reaches the inbox in the step the token is
@@ -179,6 +177,7 @@ def test_a_restarted_robot_heard_in_the_step_its_token_returns_is_not_quiet():
     live.overheard_all(["r1"], 2.5)
     live.update(2.5, live.lost)
     assert live.quiet_for_filter(2.5) == frozenset()
+
 
 def test_the_cut_off_rule_of_a_robot():
     scen = _e55()
@@ -241,39 +240,42 @@ def test_envelopes_number_each_message_and_count_what_went_to_whom():
     assert all(e.vel == vel and e.cov is None for _, e in peers) and len(vel) == 3
 
 
-
 @pytest.mark.parametrize("odometry", [False, True])
-def test_a_restarted_robot_promises_nothing_until_it_has_seen_its_base_move(odometry):
+@pytest.mark.parametrize("prefix, robot", [("e5.5-", "r2"), ("e5.2-dmpc-ellipse-triangle", "r1")])
+def test_a_restarted_robot_promises_nothing_until_it_has_seen_its_base_move(odometry, prefix, robot):
     """A process that joined a run in progress does not know what its base applies (the killed
     process's command, braked by the simulator since): its envelopes carry no velocity until it
     has seen the base move, from odometry or two poses, and then the base's velocity, rate-limited
-    towards its own command from there (docs/journal/faults.md, "A restarted robot's first promise")."""
-    scen = _e55()
-    model = scen.robot("r2").model
-    stage = EnvelopeStage(scen, "r2", KEYS)
+    towards its own command from there (docs/journal/faults.md, "A restarted robot's first promise").
+    A unicycle (E5.5) and an omni robot (E5.2), whose base also slides sideways."""
+    scen = load_scenario(config(prefix))
+    model = scen.robot(robot).model
+    stage = EnvelopeStage(scen, robot, KEYS)
     stage.rejoined()
     msgs = [Outgoing("state", {"s": 1.0})]
-    # the base drives at 0.15 m/s straight ahead along heading pi/2 and turns at 0.1 rad/s
-    v, w, dt = 0.15, 0.1, scen.run.dt
-    th0 = math.pi / 2
-    p0 = np.array([1.0, 2.0, th0])
-    p1 = np.array([1.0 + v * dt * math.cos(th0 + w * dt / 2), 2.0 + v * dt * math.sin(th0 + w * dt / 2), th0 + w * dt])
-    base = [v, w] if model.command_size == 2 else [v, 0.0, w]
+    dt = scen.run.dt
+    base = [0.15, 0.1] if model.command_size == 2 else [0.15, -0.04, 0.1]  # (u, omega) / (u, v, omega)
+    p0 = np.array([1.0, 2.0, 3.0])
+    p1 = integrate_body_velocity(p0, base if len(base) == 3 else [base[0], 0.0, base[1]], dt)  # the simulator's step
     odom = [[0.0, dt, *base]] if odometry else ()
+    cmd = [0.3] + [0.0] * (model.command_size - 1)
     stage.observe(0.0, p0, odom)
     if not odometry:
-        peers, vel = stage.send(0.0, p0, [0.3] + [0.0] * (model.command_size - 1), msgs, None)
-        assert vel is None and all(e.vel is None for _, e in peers)
+        peers, vel = stage.send(0.0, p0, cmd, msgs, None)
+        assert vel is None and all(e.vel is None for _, e in peers) and not stage.known
+        stage.observe(0.0, p0)  # the same observation again: nothing learnt
+        assert not stage.known
         stage.observe(dt, p1)
     assert stage.known
     np.testing.assert_allclose(stage.applied, base, atol=1e-9)
-    peers, vel = stage.send(dt, p1, [0.3] + [0.0] * (model.command_size - 1), msgs, None)
-    expected = limit_change(model, np.asarray(base), model.saturate([0.3] + [0.0] * (model.command_size - 1))[0], dt)
+    peers, vel = stage.send(dt, p1, cmd, msgs, None)
+    expected = limit_change(model, np.asarray(base), model.saturate(cmd)[0], dt)
     assert vel == pytest.approx(world_velocity_list(model, float(p1[2]), expected))
     assert peers[0][1].vel == vel
     # a fresh run's robot starts from rest, as before
-    fresh = EnvelopeStage(scen, "r2", KEYS)
+    fresh = EnvelopeStage(scen, robot, KEYS)
     assert fresh.known and not fresh.applied.any()
+
 
 # -- the safety filter's config ------------------------------------------------------------------
 def test_the_guard_takes_a_keyword_config_and_names_a_bad_field():

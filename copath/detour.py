@@ -435,7 +435,8 @@ class DetourPlanner:
             if blocking:
                 # passing a teammate in a column: the lane is the teammate's (the robot held back
                 # behind it is pushed off its own by the filter)
-                plan = self._new_plan(t, s, blocking[0][2] if reason == "passing" else q, blocking, near, reason)
+                plan = self._new_plan(t, s, blocking[0][2] if reason == "passing" else q, blocking, near, reason,
+                                      self.stalled(t))
                 if plan is not None and reason == "passing":
                     plan.passing = (blocking[0][0].x, blocking[0][0].y)
                 if plan is not None:
@@ -505,7 +506,14 @@ class DetourPlanner:
                 out.append((d, self.direction * (float(ss[k]) - s), float(lat)))
         return out
 
-    def _new_plan(self, t: float, s: float, q: float, blocking, near: Sequence[Disc], reason: str) -> DetourPlan | None:
+    def _new_plan(self, t: float, s: float, q: float, blocking, near: Sequence[Disc], reason: str,
+                  stalled: bool = False) -> DetourPlan | None:
+        """The detour round ``blocking`` from the robot's path coordinate ``s`` (None: no side has
+        room). Its ramp in ends where the first disc begins and is at least ``min_ramp_m`` long;
+        a robot ``stalled`` in front of a disc nearer than that gets the ramp behind it, so the
+        shift shows in what its controller sees at once (a step in the pose it is shown, taken
+        at rest): a ramp that begins where a robot stands still is one it never enters
+        (docs/reference/detours.md, "A robot stalled at the block")."""
         cfg = self.config
         right = -self.direction  # the robot's right as a sign along the left normal n
         side = self._side(s, q, blocking, near, right, prefer_right=reason in ("stalled", "passing"))
@@ -514,8 +522,11 @@ class DetourPlanner:
         target, group = side
         u_lo = min(u - d.radius - self.width for d, u, _ in group)
         u_hi = max(u + d.radius + self.width for d, u, _ in group)
-        ramp_in = min(cfg.ramp_m, max(u_lo, cfg.min_ramp_m))
-        u_lo = max(u_lo, ramp_in)
+        if stalled and u_lo < cfg.min_ramp_m:
+            ramp_in, u_lo = cfg.min_ramp_m, max(u_lo, 0.0)
+        else:
+            ramp_in = min(cfg.ramp_m, max(u_lo, cfg.min_ramp_m))
+            u_lo = max(u_lo, ramp_in)
         return DetourPlan(s, self.direction, target, target, u_lo, max(u_hi, u_lo), ramp_in, cfg.ramp_m, q, t, reason)
 
     def _side(self, s: float, q: float, blocking, near: Sequence[Disc], right: int, prefer_right: bool):

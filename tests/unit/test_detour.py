@@ -243,3 +243,26 @@ def test_a_robot_held_back_behind_a_teammate_after_a_detour_passes_it():
     assert closest > 2 * R  # never touched it
     x, xt, events, _ = _column(first_detour=False)
     assert "passing" not in events and x < xt
+
+
+def test_a_robot_stalled_at_a_block_sees_the_shift_at_once():
+    """A held disc just ahead of a robot that stands still: the ramp of a detour begun where the
+    robot stands is one it never enters (its controller would see no shift); a stalled robot's
+    ramp lies behind it, so the pose it is shown is off its lane from the first step."""
+    path = line((-1.0, 0.0), 0.0, 20.0)
+    block = [(0.27, 0.02, 0.1, True)]
+    pose = np.array([0.0, 0.0, 0.0])
+
+    def shown(planner: DetourPlanner, t0: float) -> list[float]:
+        return [planner.step(t0 + k * DT, pose, peers=block).offset for k in range(6)]
+
+    stalled = DetourPlanner(path, R, True, DT)
+    for k in range(45):  # 4.5 s without moving, nothing in sight: stalled
+        stalled.step(k * DT, pose)
+    assert stalled.stalled(4.4)
+    offsets = shown(stalled, 4.5)
+    assert stalled.plan is not None and stalled.plan.reason == "held"
+    # where it stands the lane is already shifted by nearly the detour's whole height
+    assert abs(offsets[0]) > 0.9 * abs(stalled.plan.target) > 0.1 and offsets[-1] == offsets[0]
+    fresh = DetourPlanner(path, R, True, DT)  # just arrived: the ramp begins where it stands
+    assert all(abs(o) < 1e-12 for o in shown(fresh, 0.0)) and fresh.plan is not None

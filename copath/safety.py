@@ -162,6 +162,14 @@ class SafetyConfig:
     robots (they can sidestep; the rule would cost E5.1 its formation under faults);
     docs/reference/safety.md."""
 
+    held_turn_m: float = 0.3
+    """Deadlock rule beside a held robot: when the disc of a robot lost by its token (held still
+    by the simulator) lies ahead on the robot's right within this distance of its edge, and no
+    live robot's disc lies ahead within it, the rule turns left instead [m] (a held robot does
+    not turn, and turning right into it is a trap; docs/reference/safety.md, "Deadlock rule");
+    0: always right (chosen: 0.2-0.4 m gave figures within a few points of each other on E5.6's
+    circle swap, 0.15 m jammed it)."""
+
     commit_accel_mps2: float | None = None
     """Committed plans (docs/reference/safety.md, "Committed plans"): every filtered robot promises to stay,
     for ``commit_horizon_s`` after each envelope it publishes, within
@@ -218,6 +226,8 @@ class SafetyConfig:
         require(self.deadlock_turn_rad is None or (math.isfinite(self.deadlock_turn_rad)
                                                     and 0 <= self.deadlock_turn_rad <= math.pi / 2),
                 "safety.deadlock_turn_rad", self.deadlock_turn_rad, "must be in [0, pi/2] (0: no deadlock rule)")
+        require(math.isfinite(self.held_turn_m) and self.held_turn_m >= 0, "safety.held_turn_m", self.held_turn_m,
+                "must be >= 0 (0: the deadlock rule always turns right)")
 
 
 class Neighbour(NamedTuple):
@@ -251,6 +261,9 @@ class Neighbour(NamedTuple):
     held: bool = False
     """A lost robot held still by the simulator: a static disc round where it may have stopped
     (docs/reference/safety.md, "A lost robot"); the detour stage goes round it (docs/reference/detours.md)."""
+    silent: bool = False
+    """Held because it went quiet (no message for the lease), not because its token went: its
+    disc bounds where it may have driven before holding itself, not where the simulator holds it."""
 
 
 @dataclass(frozen=True)
@@ -650,6 +663,8 @@ class SafetyFilter:
         turn = config.deadlock_turn_rad
         self.turn = float(turn) if turn is not None else (0.0 if self.omni else UNICYCLE_TURN_RAD)
         """Deadlock rule's turn of the reference [rad] (0: off)."""
+        self.held_turn = float(config.held_turn_m)
+        """Reach of the deadlock rule's left turn beside a held robot [m] (:meth:`turn_side`)."""
         # command-space weight W: wheel-speed scale for the turn rate (L_w, or the half axle b);
         # a unicycle with a look-ahead point: |zdot - zdot_nom|^2 = (u - u_nom)^T diag(1, l^2) (u - u_nom)
         if self.omni:
@@ -905,15 +920,38 @@ class SafetyFilter:
             return np.array([c * ref[0] + s * ref[1], -s * ref[0] + c * ref[1], float(u_nom[2])])
         return np.linalg.solve(self.lookahead_map(theta), ref)
 
+    def turn_side(self, pose, u_nom, neighbours: Sequence[Neighbour]) -> int:
+        """The deadlock rule's side: +1 (right) or -1 (left). Right is the convention every
+        live robot keeps, so two that meet pass each other. A robot lost by its token is held
+        still by the simulator where it stopped and turns no more: when its disc lies ahead on
+        the right within ``held_turn_m`` of its edge, turning right steers into it, and the rule
+        turns left, unless a live robot's disc lies ahead within that reach too (the two must
+        keep the convention between them). A silent robot's disc (a bound on where it may have
+        stopped, ``Neighbour.silent``) keeps the right turn. Measured on E5.6's circle swap:
+        docs/journal/detours.md, "A right turn into a held robot"."""
+        if not self.held_turn:
+            return 1
+        nu = self.steered_velocity(u_nom, float(pose[2]))
+        x, y = float(pose[0]), float(pose[1])
+        held_right = False
+        for nb in neighbours:
+            dx, dy = nb.position[0] - x, nb.position[1] - y
+            if nu[0] * dx + nu[1] * dy <= 0.0 or math.hypot(dx, dy) >= self.held_turn + nb.radius + _spread(nb):
+                continue  # behind, or its edge beyond the reach of this robot's centre
+            if not nb.held:
+                return 1
+            held_right = held_right or (not nb.silent and nu[0] * dy - nu[1] * dx < 0.0)
+        return -1 if held_right else 1
+
     def filter(self, pose, nominal, neighbours: Sequence[Neighbour] = (), ranges=None, angles=None,
                tubes: Sequence[Tube] | TubeSet = ()) -> SafetyResult:
         """Minimally modify ``nominal`` so every barrier holds; return it unchanged if they do.
 
         When the solution slows the robot (its steered point's speed is a fraction r < 1 of the
         nominal's), the QP is solved once more towards the nominal turned right by
-        ``deadlock_turn_rad * (1 - r)`` (:meth:`biased_reference`): a fixed, decentralised rule
-        that breaks symmetric deadlocks, barely touches a robot that is only slowed a little,
-        and keeps lockstep runs reproducible."""
+        ``deadlock_turn_rad`` (:meth:`biased_reference`; left beside a held robot,
+        :meth:`turn_side`): a fixed, decentralised rule that breaks symmetric deadlocks and
+        keeps lockstep runs reproducible."""
         u_nom, u_sat, cap_ok = self._saturated(nominal)
         if cap_ok:
             h_min = self._clear(pose, neighbours, ranges, angles, tubes, u_sat)
@@ -930,7 +968,7 @@ class SafetyFilter:
         ratio = float(np.hypot(*self.steered_velocity(u, th))) / speed_nom if speed_nom > 1e-9 else 1.0
         blocked = bool(np.any((A @ u_sat < rhs - 1e-12) & (soft != TUBE)))  # a barrier, not the cap or the tube
         if ok and blocked and ratio < SLOWED:
-            ref = self.biased_reference(u_sat, th, self.turn)
+            ref = self.biased_reference(u_sat, th, self.turn * self.turn_side(pose, u_sat, neighbours))
             if ref is not None:
                 ub, sb, okb = self._solve(A, rhs, ref, soft)
                 if okb:
@@ -994,7 +1032,7 @@ class SafetyFilter:
         omni, gamma, r_eff, margin, max_age = self.omni, self.gamma, self.r_eff, cfg.margin_m, cfg.max_age_s
         look = not omni and lk
         sqrt = math.sqrt
-        for (nbx, nby), age, radius, speed_max, spread, nb_look, predicted, committed, _ in neighbours:
+        for (nbx, nby), age, radius, speed_max, spread, nb_look, predicted, committed, _, _ in neighbours:
             if age > max_age:
                 continue
             if spread is None:  # _spread
@@ -1580,7 +1618,8 @@ class SafetyGuard:
         centre = (0.5 * (x + end[0]), 0.5 * (y + end[1]))
         back = self._back_at.get(sender)
         if back is None:  # at rest, its centre is the point to keep off: no look-ahead of its own
-            return Neighbour(centre, 0.0, nb.radius + reach, nb.speed_max, 0.0, 0.0, False, (0.0, 0.0, 0.0, 0.0), True)
+            return Neighbour(centre, 0.0, nb.radius + reach, nb.speed_max, 0.0, 0.0, False, (0.0, 0.0, 0.0, 0.0), True,
+                             quiet)
         since = max(now - back, 0.0) + self._dt
         if since > self._config.max_age_s:
             return None

@@ -180,6 +180,26 @@ def test_e5_4_with_r1_killed_the_live_robots_go_round_it():
     _recovers(truth_series(res.trace, scen), _passes(res.trace.events))
 
 
+@pytest.mark.slow
+def test_circle_swap_with_a_robot_killed_at_the_crossing_unjams():
+    """E5.6's twelve-robot circle swap with r1 killed at 5 s, 0.56 m from the centre every lane
+    crosses: the live robots wheel round it and make at least 90 % of their progress without
+    the failure, touching nothing. Without the deadlock rule's left turn beside a held robot
+    (``safety.held_turn_m = 0``) the crowd knots round r1's disc and its slowest robot makes
+    about half (docs/journal/detours.md, "A right turn into a held robot")."""
+    scen = load_scenario(config("e5.6-circle")).with_overrides(run={"on_robot_failure": "continue"},
+                                                               safety={"detours": True})
+    without = _progress(run_scenario(scen, duration_s=55.0), scen)
+    shares = {}
+    for held_turn in (0.3, 0.0):
+        s = scen.with_overrides(safety={"held_turn_m": held_turn})
+        res = run_scenario(s, duration_s=55.0, kills={"r1": 5.0})
+        assert res.metrics["fleet"]["collisions"] == 0
+        got = _progress(res, s)
+        shares[held_turn] = min(got[n] / without[n] for n in got if n != "r1")
+    assert shares[0.3] >= 0.9 and shares[0.0] < 0.7, shares
+
+
 def _box(path, s: float, half: float = 0.1, known: bool = True) -> ObstacleSpec:
     """A square box of side 2 ``half`` centred on the path at ``s``."""
     x, y = (float(v) for v in path.frame(s)[:2])

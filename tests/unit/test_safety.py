@@ -538,3 +538,33 @@ def test_a_silent_robot_is_held_as_a_static_disc_until_heard_again():
     g2.hear("b", (2.0, 0.0), 5.0)
     g2.apply((0.0, 0.0, 0.0), [0.0, 0.0, 0.0], 6.1, silent={"b"})
     assert not [nb for nb in g2.neighbours(9.0) if nb.age <= cfg.max_age_s]
+
+
+def test_deadlock_rule_turns_left_beside_a_held_robot_on_the_right():
+    """A robot lost by its token, held still, does not turn: with its disc ahead on the right,
+    the rule's right turn would steer into it, so it turns left; a live robot ahead keeps the
+    convention (right), and so does a silent robot's disc."""
+    model = UnicycleModel(v_max=0.5, omega_max=1.0)
+    f = SafetyFilter(CFG, model, 0.1)
+    pose, nominal = [0.0, 0.0, 0.0], [0.3, 0.0]
+    held_right = Neighbour((0.3, -0.05), 0.0, 0.1, 0.5, spread=0.0, held=True)
+    res = f.filter(pose, nominal, [held_right])
+    assert res.active and res.biased and res.command[1] > 0  # counter-clockwise: away from the disc
+    assert f.turn_side(pose, nominal, [held_right]) == -1
+    # mirrored: the held disc on the left, the usual right turn
+    held_left = held_right._replace(position=(0.3, 0.05))
+    assert f.turn_side(pose, nominal, [held_left]) == 1
+    assert f.filter(pose, nominal, [held_left]).command[1] < 0
+    # a live robot ahead within the reach: the two keep the convention
+    live = Neighbour((0.35, 0.1), 0.1, 0.06, 0.5)
+    assert f.turn_side(pose, nominal, [held_right, live]) == 1
+    # behind, or its edge beyond held_turn_m of the centre: right
+    assert f.turn_side(pose, nominal, [held_right._replace(position=(-0.3, -0.05))]) == 1
+    far = 0.1 + CFG.held_turn_m + 0.01
+    assert f.turn_side(pose, nominal, [held_right._replace(position=(far, -0.05))]) == 1
+    # a silent robot's disc (where it may have stopped) keeps the right turn
+    assert f.turn_side(pose, nominal, [held_right._replace(silent=True)]) == 1
+    off = SafetyFilter(SafetyConfig(enabled=True, held_turn_m=0.0), model, 0.1)
+    assert off.turn_side(pose, nominal, [held_right]) == 1 and off.filter(pose, nominal, [held_right]).command[1] < 0
+    with pytest.raises(ConfigError, match=r"safety.held_turn_m = -0.1 is not allowed; must be >= 0"):
+        from_table(SafetyConfig, {"held_turn_m": -0.1}, "safety")

@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import json
 
+import pytest
+
 from orchestrator.studies.bench.failure_sweep import main
 
 
@@ -20,3 +22,17 @@ def test_the_sweep_kills_each_robot_and_the_column_never_touches_it(capsys):
     for r in runs:
         assert set(r["progress"]) == {"r1", "r2", "r3"} - {r["robot"]}
         assert r["progress_min"] == min(r["progress"].values()) and 0.0 < r["progress_min"] < 1.5
+
+
+def test_the_sweep_takes_its_own_times_and_victims_and_refuses_a_stranger(capsys):
+    """``--times`` and ``--victims`` replace the listed ones (a grid over kill times); a victim
+    that is not one of the scenario's robots is refused, naming it and the robots."""
+    assert main(["--only", "e5.5", "--faults", "kill", "--times", "6", "--victims", "r2", "--json"]) == 0
+    runs = json.loads(capsys.readouterr().out)["runs"]
+    assert [(r["robot"], r["t_s"], r["collisions"]) for r in runs] == [("r2", 6.0, 0)]
+    assert set(runs[0]["progress"]) == {"r1", "r3"}
+    with pytest.raises(SystemExit) as refused:
+        main(["--only", "e5.5", "--victims", "r9"])
+    assert refused.value.code == 2
+    err = capsys.readouterr().err
+    assert "--victims 'r9' is not allowed for e5.5-column-lemniscate" in err and "r1, r2, r3" in err

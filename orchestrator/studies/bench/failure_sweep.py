@@ -4,7 +4,13 @@ scenarios, each run in one process (lockstep, ``run.on_robot_failure = "continue
 from the simulator's truth.
 
     python -m orchestrator.studies.bench.failure_sweep [--only e5.1 e5.6-circle ...] [--faults kill silence]
+                                       [--times 4 5 8 ...] [--victims r1 r4 ...]
                                        [--set run.cut_off=drive ...] [--json]
+
+``--times`` and ``--victims`` replace the listed fault times and victims of every scenario run
+(a grid over kill times: one kill time is not a measurement, docs/journal/detours.md, "A right
+turn into a held robot"); a victim that is not a robot of a scenario is refused, naming it and
+the scenario's robots.
 
 Each run lasts its listed length, or :data:`AFTER_S` after the fault where that is longer.
 Per run: collisions and minimum separation over the whole run (the metrics' rule), the
@@ -32,6 +38,7 @@ from orchestrator import api
 from orchestrator.analysis.truth import truth_series
 from orchestrator.run.inprocess import run_scenario
 from orchestrator.testkit.scenarios import config
+from orchestrator.studies.bench.harness import number
 
 CASES: list[tuple[str, tuple[float, ...], float, tuple[str, ...]]] = [
     # (scenario prefix, fault times [s], run length [s], victims)
@@ -113,6 +120,9 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--only", nargs="+", metavar="PREFIX", help="scenario prefixes of CASES to run")
     ap.add_argument("--faults", nargs="+", choices=("kill", "silence"), default=["kill", "silence"])
+    ap.add_argument("--times", nargs="+", type=number("--times"), metavar="S",
+                    help="fault times [s] instead of each scenario's listed ones")
+    ap.add_argument("--victims", nargs="+", metavar="ROBOT", help="robots to fail instead of each scenario's listed ones")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                     help="a scenario override for every run, e.g. run.cut_off=drive")
     ap.add_argument("--json", action="store_true", help="one JSON document instead of the table")
@@ -123,6 +133,13 @@ def main(argv: list[str] | None = None) -> int:
         if args.only and not any(prefix.startswith(o) or o.startswith(prefix.rstrip("-")) for o in args.only):
             continue
         scen = api.load(config(prefix), overrides=args.set)
+        times = tuple(args.times) if args.times else times
+        if args.victims:
+            names = [r.name for r in scen.robots]
+            unknown = [v for v in args.victims if v not in names]
+            if unknown:
+                ap.error(f"--victims {unknown[0]!r} is not allowed for {scen.id}; must be one of its robots: {', '.join(names)}")
+            victims = tuple(args.victims)
         free: dict[float, dict[str, float]] = {}  # run length -> progress without the failure
         for fault in args.faults:
             for victim in victims:

@@ -929,7 +929,7 @@ class SafetyFilter:
         keep the convention between them). A silent robot's disc (a bound on where it may have
         stopped, ``Neighbour.silent``) keeps the right turn. Measured on E5.6's circle swap:
         docs/journal/detours.md, "A right turn into a held robot"."""
-        if not self.held_turn:
+        if not self.held_turn or not self.turn:  # no rule, or no left turn to take
             return 1
         nu = self.steered_velocity(u_nom, float(pose[2]))
         x, y = float(pose[0]), float(pose[1])

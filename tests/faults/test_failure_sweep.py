@@ -31,8 +31,9 @@ def test_the_sweep_takes_its_own_times_and_victims_and_refuses_a_stranger(capsys
     runs = json.loads(capsys.readouterr().out)["runs"]
     assert [(r["robot"], r["t_s"], r["collisions"]) for r in runs] == [("r2", 6.0, 0)]
     assert set(runs[0]["progress"]) == {"r1", "r3"}
-    with pytest.raises(SystemExit) as refused:
-        main(["--only", "e5.5", "--victims", "r9"])
+    with pytest.raises(SystemExit) as refused:  # refused before any run: E5.4 has r5, E5.5 has not
+        main(["--only", "e5.4", "e5.5", "--victims", "r5"])
     assert refused.value.code == 2
     err = capsys.readouterr().err
-    assert "--victims 'r9' is not allowed for e5.5-column-lemniscate" in err and "r1, r2, r3" in err
+    assert "--victims 'r5' is not allowed for e5.5-column-lemniscate" in err and "r1, r2, r3" in err
+    assert capsys.readouterr().out == ""

@@ -564,6 +564,8 @@ def test_deadlock_rule_turns_left_beside_a_held_robot_on_the_right():
     assert f.turn_side(pose, nominal, [held_right._replace(position=(far, -0.05))]) == 1
     # a silent robot's disc (where it may have stopped) keeps the right turn
     assert f.turn_side(pose, nominal, [held_right._replace(silent=True)]) == 1
+    no_rule = SafetyFilter(SafetyConfig(enabled=True, deadlock_turn_rad=0.0), model, 0.1)
+    assert no_rule.turn_side(pose, nominal, [held_right]) == 1  # no rule: no side to choose
     off = SafetyFilter(SafetyConfig(enabled=True, held_turn_m=0.0), model, 0.1)
     assert off.turn_side(pose, nominal, [held_right]) == 1 and off.filter(pose, nominal, [held_right]).command[1] < 0
     with pytest.raises(ConfigError, match=r"safety.held_turn_m = -0.1 is not allowed; must be >= 0"):

@@ -37,8 +37,8 @@ from copath.slots import track_coordinate
 from orchestrator import api
 from orchestrator.analysis.truth import truth_series
 from orchestrator.run.inprocess import run_scenario
-from orchestrator.testkit.scenarios import config
 from orchestrator.studies.bench.harness import number
+from orchestrator.testkit.scenarios import config
 
 CASES: list[tuple[str, tuple[float, ...], float, tuple[str, ...]]] = [
     # (scenario prefix, fault times [s], run length [s], victims)
@@ -127,19 +127,18 @@ def main(argv: list[str] | None = None) -> int:
                     help="a scenario override for every run, e.g. run.cut_off=drive")
     ap.add_argument("--json", action="store_true", help="one JSON document instead of the table")
     args = ap.parse_args(argv)
+    cases = [(api.load(config(prefix), overrides=args.set), tuple(args.times or times), duration,
+              tuple(args.victims or victims))
+             for prefix, times, duration, victims in CASES
+             if not args.only or any(prefix.startswith(o) or o.startswith(prefix.rstrip("-")) for o in args.only)]
+    for scen, _, _, victims in cases:  # refused before any run, not after the scenarios before it
+        names = [r.name for r in scen.robots]
+        unknown = [v for v in victims if v not in names]
+        if unknown:
+            ap.error(f"--victims {unknown[0]!r} is not allowed for {scen.id}; must be one of its robots: {', '.join(names)}")
     rows = []
     t0 = time.perf_counter()
-    for prefix, times, duration, victims in CASES:
-        if args.only and not any(prefix.startswith(o) or o.startswith(prefix.rstrip("-")) for o in args.only):
-            continue
-        scen = api.load(config(prefix), overrides=args.set)
-        times = tuple(args.times) if args.times else times
-        if args.victims:
-            names = [r.name for r in scen.robots]
-            unknown = [v for v in args.victims if v not in names]
-            if unknown:
-                ap.error(f"--victims {unknown[0]!r} is not allowed for {scen.id}; must be one of its robots: {', '.join(names)}")
-            victims = tuple(args.victims)
+    for scen, times, duration, victims in cases:
         free: dict[float, dict[str, float]] = {}  # run length -> progress without the failure
         for fault in args.faults:
             for victim in victims:

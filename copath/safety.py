@@ -581,6 +581,12 @@ _NS = 3  # slack variables
 UNICYCLE_TURN_RAD = 1.2
 """Default turn of the deadlock rule for unicycles [rad] (chosen, docs/reference/safety.md)."""
 
+HELD_DEADBAND_RAD = 0.1
+"""Half-width of the dead band round straight ahead in which the deadlock rule keeps the side it
+took beside a held robot at its last decision (chosen: 0.05, 0.1 and 0.2 rad measured alike; without it
+a nominal aimed at the held disc flipped the side at every step, docs/journal/detours.md, "A side
+that flips at every step")."""
+
 SLOWED = 1.0 - 1e-6
 """The deadlock rule applies when a barrier leaves the robot's steered point less than this
 fraction of its nominal speed (chosen: whenever a barrier slows it; with 0.2 or 0.5, "nearly
@@ -665,6 +671,9 @@ class SafetyFilter:
         """Deadlock rule's turn of the reference [rad] (0: off)."""
         self.held_turn = float(config.held_turn_m)
         """Reach of the deadlock rule's left turn beside a held robot [m] (:meth:`turn_side`)."""
+        self.held_side: int | None = None
+        """The side :meth:`turn_side` took at its last decision beside a held robot (None: none
+        since a call without one in reach); kept within ``HELD_DEADBAND_RAD`` of straight ahead."""
         # command-space weight W: wheel-speed scale for the turn rate (L_w, or the half axle b);
         # a unicycle with a look-ahead point: |zdot - zdot_nom|^2 = (u - u_nom)^T diag(1, l^2) (u - u_nom)
         if self.omni:
@@ -928,20 +937,37 @@ class SafetyFilter:
         turns left, unless a live robot's disc lies ahead within that reach too (the two must
         keep the convention between them). A silent robot's disc (a bound on where it may have
         stopped, ``Neighbour.silent``) keeps the right turn. Measured on E5.6's circle swap:
-        docs/journal/detours.md, "A right turn into a held robot"."""
+        docs/journal/detours.md, "A right turn into a held robot".
+
+        A held disc within ``HELD_DEADBAND_RAD`` of straight ahead lies on neither side: there
+        the side of the last decision beside a held robot (:attr:`held_side`) stands. Decided
+        afresh at every step, a nominal aimed at the disc turned the robot left, then right, and
+        it rocked in place for good (docs/journal/detours.md, "A side that flips at every step")."""
         if not self.held_turn or not self.turn:  # no rule, or no left turn to take
             return 1
         nu = self.steered_velocity(u_nom, float(pose[2]))
         x, y = float(pose[0]), float(pose[1])
-        held_right = False
+        band = math.sin(HELD_DEADBAND_RAD) * math.hypot(nu[0], nu[1])
+        held_right = ahead = beside = False
         for nb in neighbours:
             dx, dy = nb.position[0] - x, nb.position[1] - y
-            if nu[0] * dx + nu[1] * dy <= 0.0 or math.hypot(dx, dy) >= self.held_turn + nb.radius + _spread(nb):
+            dist = math.hypot(dx, dy)
+            if nu[0] * dx + nu[1] * dy <= 0.0 or dist >= self.held_turn + nb.radius + _spread(nb):
                 continue  # behind, or its edge beyond the reach of this robot's centre
             if not nb.held:
+                self.held_side = None
                 return 1
-            held_right = held_right or (not nb.silent and nu[0] * dy - nu[1] * dx < 0.0)
-        return -1 if held_right else 1
+            if nb.silent:
+                continue
+            beside = True
+            cross = nu[0] * dy - nu[1] * dx  # < 0: on the right of the steered velocity
+            ahead = ahead or abs(cross) <= band * dist
+            held_right = held_right or cross < 0.0
+        side = -1 if held_right else 1
+        if ahead and self.held_side is not None:
+            side = self.held_side
+        self.held_side = side if beside else None
+        return side
 
     def filter(self, pose, nominal, neighbours: Sequence[Neighbour] = (), ranges=None, angles=None,
                tubes: Sequence[Tube] | TubeSet = ()) -> SafetyResult:

@@ -200,6 +200,28 @@ def test_circle_swap_with_a_robot_killed_at_the_crossing_unjams():
     assert shares[0.3] >= 0.9 and shares[0.0] < 0.7, shares
 
 
+@pytest.mark.slow
+def test_circle_swap_with_a_robot_killed_dead_ahead_of_another_does_not_rock_in_place(monkeypatch):
+    """E5.6's circle swap with r1 killed at 14 s: r10 is left alone with r1's disc dead ahead of
+    its nominal. The deadlock rule keeps its side there (``HELD_DEADBAND_RAD``) and r10 goes round;
+    decided afresh at each step, the side flipped every step and r10 rocked in place beside the
+    disc to the end, about an eighth of its progress (docs/journal/detours.md, "A side that flips
+    at every step")."""
+    import copath.safety  # noqa: PLC0415
+
+    scen = load_scenario(config("e5.6-circle")).with_overrides(run={"on_robot_failure": "continue"},
+                                                               safety={"detours": True})
+    without = _progress(run_scenario(scen, duration_s=64.0), scen)
+    shares, band0 = {}, copath.safety.HELD_DEADBAND_RAD
+    for band in (band0, 0.0):
+        monkeypatch.setattr(copath.safety, "HELD_DEADBAND_RAD", band)
+        res = run_scenario(scen, duration_s=64.0, kills={"r1": 14.0})
+        assert res.metrics["fleet"]["collisions"] == 0
+        got = _progress(res, scen)
+        shares[band] = min(got[n] / without[n] for n in got if n != "r1")
+    assert shares[band0] >= 0.85 and shares[0.0] < 0.3, shares
+
+
 def _box(path, s: float, half: float = 0.1, known: bool = True) -> ObstacleSpec:
     """A square box of side 2 ``half`` centred on the path at ``s``."""
     x, y = (float(v) for v in path.frame(s)[:2])

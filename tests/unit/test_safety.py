@@ -9,7 +9,7 @@ import pytest
 
 from copath.config import ConfigError, from_table
 from copath.models import OmniModel, UnicycleModel
-from copath.safety import GuardConfig, Neighbour, SafetyConfig, SafetyFilter, SafetyGuard, max_speed
+from copath.safety import HELD_DEADBAND_RAD, GuardConfig, Neighbour, SafetyConfig, SafetyFilter, SafetyGuard, max_speed
 
 CFG = SafetyConfig(enabled=True)
 
@@ -538,6 +538,30 @@ def test_a_silent_robot_is_held_as_a_static_disc_until_heard_again():
     g2.hear("b", (2.0, 0.0), 5.0)
     g2.apply((0.0, 0.0, 0.0), [0.0, 0.0, 0.0], 6.1, silent={"b"})
     assert not [nb for nb in g2.neighbours(9.0) if nb.age <= cfg.max_age_s]
+
+
+def test_deadlock_rule_keeps_its_side_when_a_held_robot_is_dead_ahead():
+    """A held disc within HELD_DEADBAND_RAD of straight ahead lies on neither side: the side of
+    the last decision beside a held robot stands, so a nominal aimed at the disc does not flip
+    the turn at every step (the circle swap's r10, rocking in place beside r1 for 30 s); out of
+    the band, or after a call with no held robot in reach, the geometry decides again."""
+    model = UnicycleModel(v_max=0.5, omega_max=1.0)
+    f = SafetyFilter(CFG, model, 0.1)
+    pose, nominal = [0.0, 0.0, 0.0], [0.3, 0.0]
+    held = Neighbour((0.3, -0.05), 0.0, 0.1, 0.5, spread=0.0, held=True)  # 0.165 rad right of ahead
+    ahead_left = held._replace(position=(0.3, 0.3 * math.tan(0.5 * HELD_DEADBAND_RAD)))  # within the band, left
+    fresh = SafetyFilter(CFG, model, 0.1)
+    assert fresh.turn_side(pose, nominal, [ahead_left]) == 1  # no decision before: the disc is (just) left
+    assert f.turn_side(pose, nominal, [held]) == -1 and f.held_side == -1
+    assert f.turn_side(pose, nominal, [ahead_left]) == -1  # in the band: the last side stands
+    assert f.filter(pose, nominal, [ahead_left]).command[1] > 0  # and the filter turns left with it
+    beyond = held._replace(position=(0.3, 0.3 * math.tan(2 * HELD_DEADBAND_RAD)))  # left, out of the band
+    assert f.turn_side(pose, nominal, [beyond]) == 1 and f.held_side == 1
+    assert f.turn_side(pose, nominal, []) == 1 and f.held_side is None  # nothing held in reach: forgotten
+    assert f.turn_side(pose, nominal, [ahead_left]) == 1
+    f.turn_side(pose, nominal, [held])
+    live = Neighbour((0.35, 0.1), 0.1, 0.06, 0.5)
+    assert f.turn_side(pose, nominal, [ahead_left, live]) == 1 and f.held_side is None  # a live robot: the convention
 
 
 def test_deadlock_rule_turns_left_beside_a_held_robot_on_the_right():

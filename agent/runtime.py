@@ -144,6 +144,9 @@ class RobotRuntime:
         self.overheard_from: dict[str, int] = {}
         """Overheard envelopes that arrived from each sender (every key), refused ones included,
         counted while :attr:`awaits_overheard` (:meth:`missing`)."""
+        self._written_off: dict[str, tuple[int, float]] = {}
+        """Per sender, the messages the lockstep barrier gave up on and the tick time they were
+        stamped before (:meth:`write_off`): one of them arriving after all is not counted twice."""
         self.cut_off_rule = CutOffRule.for_robot(scenario, name, handles_cut_off)
         controller = build_controller(spec.controller, RobotContext.for_robot(scenario, name))
         self._angles = scenario.sensors.angles() if scenario.sensors.enabled else None
@@ -262,7 +265,7 @@ class RobotRuntime:
     # -- between instants -----------------------------------------------------------------
     def overhear(self, env: PeerEnvelope) -> None:
         """Accept an overheard envelope for the safety filter (:meth:`agent.stages.SafetyStage.overhear`)."""
-        if self.awaits_overheard:
+        if self.awaits_overheard and not self._arrived_late(env):
             self.overheard_from[env.sender] = self.overheard_from.get(env.sender, 0) + 1
         if self.safety is not None:
             self.safety.overhear(env)
@@ -292,6 +295,32 @@ class RobotRuntime:
                 out[sender] = n - got
         return out
 
+    def write_off(self, expect: dict[str, int] | None, t: float) -> dict[str, int]:
+        """The lockstep barrier of the tick at run time ``t`` gave up waiting: the messages
+        still missing (returned, as :meth:`missing` gives them) are written off as lost, so
+        the next ticks wait only for their own. Without this, one message lost on the wire
+        (a router link reset drops what was in flight) kept every later barrier one message
+        short, and each tick waited the full timeout: the run crawled at 5 s a tick
+        (docs/reference/faults.md, "Lost messages and the lockstep barrier"). One of them
+        arriving after all (stamped before ``t``) is then not counted again."""
+        late = self.missing(expect)
+        book = self.overheard_from if self.awaits_overheard else self.received_from
+        for sender, n in late.items():
+            book[sender] = book.get(sender, 0) + n
+            self._written_off[sender] = (self._written_off.get(sender, (0, t))[0] + n, t)
+        return late
+
+    def _arrived_late(self, env: PeerEnvelope) -> bool:
+        """``env`` is one of the messages :meth:`write_off` gave up on: already counted."""
+        off = self._written_off.get(env.sender)
+        if off is None or not env.stamp < off[1] - 0.5 * self.dt:
+            return False
+        if off[0] > 1:
+            self._written_off[env.sender] = (off[0] - 1, off[1])
+        else:
+            del self._written_off[env.sender]
+        return True
+
     def refused(self, sender: str) -> None:
         """A message on ``sender``'s key arrived and was refused (schema, origin or stamp):
         delivered-and-dropped for the lockstep barrier (:meth:`missing`), so it is not
@@ -315,7 +344,8 @@ class RobotRuntime:
         if not self.trust.admit(env, "peer"):
             self.refused(env.sender)
             return
-        self.received_from[env.sender] = self.received_from.get(env.sender, 0) + 1
+        if self.awaits_overheard or not self._arrived_late(env):
+            self.received_from[env.sender] = self.received_from.get(env.sender, 0) + 1
         self.faults.push(env)
 
     # -- one control instant: the pipeline ------------------------------------------------

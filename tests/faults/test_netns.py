@@ -32,28 +32,36 @@ def assert_every_robot_and_no_loss(tmp_path, run_id: str, ticks: int) -> dict:
     # lockstep over TCP: every message the run's processes published reached the recorder,
     # unless the lossy link was reset: a resent segment can stall it past the lease, r2's
     # session is reset and reconnects (it logs the simulator's token going and coming back
-    # within the grace), and what was in flight on it is lost, at most a tick of r2's
-    # records per reset (docs/reference/faults.md, "Across hosts"). Seen in about 1 run in 5.
+    # within the grace), and what was in flight on it is lost: r2's records, and the
+    # observations on their way to r2, for which it then neither steps nor publishes (the
+    # simulator counts those ticks as missed). Measured: at most 5 records lost and 3 ticks
+    # missed over 2 resets, the worst of 13 runs (2026-12-03; docs/reference/faults.md, "Across
+    # hosts"); the barrier writes off the peer messages lost with them.
     resets = (tmp_path / "logs" / "r2.log").read_text().count("the simulator's liveliness token is back")
     lost = m["fleet"]["messages_published"] - m["fleet"]["messages_recorded"]
     assert lost == 0 if resets == 0 else 0 <= lost <= 6 * resets, (resets, m["fleet"])
     # a stall of run.watchdog_s (TCP backoff) makes an agent publish one zero command more
-    watchdog = [r.source for _, _, r in log.records if getattr(r, "TYPE", "") == "event" and r.what == "watchdog"]
+    events = [r for _, _, r in log.records if getattr(r, "TYPE", "") == "event"]
+    watchdog = [r.source for r in events if r.what == "watchdog"]
+    missed_events = [r.detail["robot"] for r in events if r.what == "missed_tick"]
     for n in ("r1", "r2", "r3"):  # every robot is in the record, r2 through both routers
         assert log.counts[f"copath/{run_id}/robot/{n}/obs"] == ticks
         gone = resets if n == "r2" else 0
+        missed = m["robots"][n]["missed_ticks"]
+        assert missed == missed_events.count(n) <= 5 * gone, (n, missed, resets)  # each one on the timeline
         cmds = log.counts[f"copath/{run_id}/robot/{n}/cmd"]
-        assert ticks + watchdog.count(n) - 2 * gone <= cmds <= ticks + watchdog.count(n)
-        assert log.counts[f"copath/{run_id}/peer/{n}/all"] >= ticks - gone
-        assert m["robots"][n]["missed_ticks"] <= gone  # its command of that tick was in flight
+        assert ticks + watchdog.count(n) - missed - 2 * gone <= cmds <= ticks + watchdog.count(n)
+        assert log.counts[f"copath/{run_id}/peer/{n}/all"] >= ticks - missed - gone
     return m
 
 
-# "drop" failed 2 of 5 runs on this tree (2026-12-01, load 0.5-3; 1 in 5 the session before,
-# with r2's session reset on the lossy link); cause not yet found (docs/reference/faults.md, "Across
-# hosts"), so it waits in the slow tier instead of failing CI one run in two or three
-@pytest.mark.parametrize("impairment", [pytest.param("drop", marks=pytest.mark.slow),
-                                        pytest.param("tbf", marks=pytest.mark.slow)])
+# "drop" failed 2 of 5 runs on 2026-12-01 and 2 of 2 on 2026-12-03: r2's session was reset on
+# the lossy link and the lockstep barrier then waited 5 s on every later tick for the messages
+# lost with it. The barrier now writes them off (docs/reference/faults.md, "Lost messages and the
+# lockstep barrier"): 13 runs after it all completed, 3 of them with resets; one failed the old
+# rule of at most one missed tick per reset (3 missed at the start over 2 resets), replaced by the
+# accounting in assert_every_robot_and_no_loss. So "drop" is back in the faults tier; "tbf" stays slow
+@pytest.mark.parametrize("impairment", ["drop", pytest.param("tbf", marks=pytest.mark.slow)])
 def test_a_fleet_across_two_hosts_with_an_impaired_link(tmp_path, procs, impairment):
     why = why_not(iptables=impairment == "drop", tc=impairment == "tbf")
     if why:

@@ -258,9 +258,8 @@ class AgentNode:
                     left = deadline - time.monotonic()
                     if left <= 0 or self.ended.is_set() or self.inline:
                         late = self.rt.write_off(obs.expect, float(obs.t))
-                        extra = self.rt.counters.extra
-                        extra["barrier_timeouts"] = extra.get("barrier_timeouts", 0) + 1
-                        extra["barrier_written_off"] = extra.get("barrier_written_off", 0) + sum(late.values())
+                        self.rt.counters.add("barrier_timeouts")
+                        self.rt.counters.add("barrier_written_off", sum(late.values()))
                         logger.warning("tick %d: still missing peer messages %s; stepping without them "
                                        "(written off as lost)", obs.k, late)
                         return

@@ -344,7 +344,7 @@ class RobotRuntime:
         if not self.trust.admit(env, "peer"):
             self.refused(env.sender)
             return
-        if self.awaits_overheard or not self._arrived_late(env):
+        if self.awaits_overheard or not self._arrived_late(env):  # else the barrier counts in overhear()
             self.received_from[env.sender] = self.received_from.get(env.sender, 0) + 1
         self.faults.push(env)
 

@@ -22,6 +22,15 @@ def test_the_sweep_kills_each_robot_and_the_column_never_touches_it(capsys):
     for r in runs:
         assert set(r["progress"]) == {"r1", "r2", "r3"} - {r["robot"]}
         assert r["progress_min"] == min(r["progress"].values()) and 0.0 < r["progress_min"] < 1.5
+    # re-coordination after the live robots have passed the lost one, from the truth: r1 killed
+    # at 10 s is passed on two laps, each time back below 0.05 m at once; r3, last in the column,
+    # is met only on the next lap, and that pass is still under way when the run ends
+    first, last = runs
+    assert [p["end_s"] is not None for p in first["passes"]] == [True, True]
+    assert first["recoord_after_pass_max_s"] is not None and first["recoord_after_pass_max_s"] <= 20.0
+    assert all(p["end_s"] is None and p["recoord_s"] is None for p in last["passes"])
+    assert last["recoord_after_pass_max_s"] is None
+    assert out["runs_not_recoordinated_within_20s_of_the_pass"] == 0 and out["runs_with_no_pass_to_grade"] == 1
 
 
 def test_the_sweep_takes_its_own_times_and_victims_and_refuses_a_stranger(capsys):

@@ -348,7 +348,7 @@ def grade(records, scenario: Scenario, run_id: str, faults: list[Fault], metrics
         ok = np.nonzero((t >= t_back - 1e-9) & (coord < COORD_TOL_M))[0]
         row["recoord_s"] = round(float(t[ok[0]] - t_back), 2) if len(ok) else None
         t_next = next((x for x in starts if x > t_f + 1e-9), None)
-        row["recoord_held_s"] = _held_below(t, coord, t_back, t_next)
+        row["recoord_held_s"] = held_below(t, coord, t_back, t_next)
         # held only until the next fault began, not for HOLD_S: counted as held, and said
         row["held_cut_by_next_fault"] = bool(
             row["recoord_held_s"] is not None and t_next is not None
@@ -391,7 +391,7 @@ def grade(records, scenario: Scenario, run_id: str, faults: list[Fault], metrics
     return {"faults": rows, "totals": totals}
 
 
-def _held_below(t: np.ndarray, coord: np.ndarray, t_back: float, t_next: float | None = None) -> float | None:
+def held_below(t: np.ndarray, coord: np.ndarray, t_back: float, t_next: float | None = None) -> float | None:
     """Seconds from ``t_back`` to the first instant from which the coordination error stays
     below :data:`COORD_TOL_M` for :data:`HOLD_S`, or until the next fault begins (``t_next``)
     or the run ends, whichever comes first; None if never. An error that builds up after the

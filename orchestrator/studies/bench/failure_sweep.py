@@ -5,19 +5,23 @@ from the simulator's truth.
 
     python -m orchestrator.studies.bench.failure_sweep [--only e5.1 e5.6-circle ...] [--faults kill silence]
                                        [--times 4 5 8 ...] [--victims r1 r4 ...]
-                                       [--set run.cut_off=drive ...] [--json]
+                                       [--set run.cut_off=drive ...] [--after S] [--json]
 
 ``--times`` and ``--victims`` replace the listed fault times and victims of every scenario run
 (a grid over kill times: one kill time is not a measurement, docs/journal/detours.md, "A right
 turn into a held robot"); a victim that is not a robot of a scenario is refused, naming it and
 the scenario's robots.
 
-Each run lasts its listed length, or :data:`AFTER_S` after the fault where that is longer.
+Each run lasts its listed length, or :data:`AFTER_S` after the fault where that is longer
+(``--after S`` instead: re-coordination is graded only for a pass that ended 20 s before the
+run did, and a column that meets the lost robot a lap later needs longer runs).
 Per run: collisions and minimum separation over the whole run (the metrics' rule), the
 fleet's largest coordination error after settling over the live robots (docs/reference/metrics.md, formation error (M3)),
 or the tasks completed (Chapter 6), and each live robot's progress along its path as a share
 of its progress in the same run without the failure (``progress``; the goal of
-docs/reference/detours.md is >= 90 % for every live robot), with the detours they made.
+docs/reference/detours.md is >= 90 % for every live robot), with the detours they made,
+and how soon the live robots are back in coordination after they have passed the lost one
+(:func:`passes`: the same goal's "below 0.05 m within 20 s after the last robot has passed").
 A kill is ``run_scenario(kills=...)``: the robot's link closes at that tick, as with
 SIGKILL (its token goes, the simulator holds it still); a silence is ``network.silence``
 from that time to the end.
@@ -37,6 +41,7 @@ from copath.slots import track_coordinate
 from orchestrator import api
 from orchestrator.analysis.truth import truth_series
 from orchestrator.run.inprocess import run_scenario
+from orchestrator.studies.bench.chaos import COORD_TOL_M, HOLD_S, held_below
 from orchestrator.studies.bench.harness import number
 from orchestrator.testkit.scenarios import config
 
@@ -66,10 +71,15 @@ its held robot within about 40 s of the kill, docs/journal/detours.md). A run wh
 length is shorter is lengthened, and so is the run without the failure it is compared with."""
 
 
-def run_length(duration_s: float, t_fault: float) -> float:
-    """The length of a run with a fault at ``t_fault`` [s]: the listed one, or :data:`AFTER_S`
-    after the fault where that is longer."""
-    return max(float(duration_s), float(t_fault) + AFTER_S)
+RECOORD_GOAL_S = 20.0
+"""The issue's goal: the live robots are back in coordination this soon after the last of them
+has passed the lost one [s] (docs/reference/detours.md)."""
+
+
+def run_length(duration_s: float, t_fault: float, after_s: float = AFTER_S) -> float:
+    """The length of a run with a fault at ``t_fault`` [s]: the listed one, or ``after_s``
+    (:data:`AFTER_S`) after the fault where that is longer."""
+    return max(float(duration_s), float(t_fault) + after_s)
 
 
 def progress(res, scen: Scenario) -> dict[str, float]:
@@ -82,6 +92,60 @@ def progress(res, scen: Scenario) -> dict[str, float]:
         S = {r.name: track_coordinate(scen.paths[r.path], res.trace.robots[r.name].pose[:, :2])
              for r in scen.robots if r.path and r.name in res.trace.robots}
     return {n: float(v[-1] - v[0]) for n, v in S.items() if len(v)}
+
+
+def pass_spans(events, victim: str, t_fault: float) -> list[list[float | None]]:
+    """The passes of :func:`passes`: [start, end] of each stretch of time in which a live robot
+    (not ``victim``) was on a detour begun at or after ``t_fault`` [s], overlapping detours
+    merged; end None while one was still under way when the log ended."""
+    spans: list[list[float | None]] = []  # [start, end] per detour
+    under_way: dict[str, list[float | None]] = {}
+    for e in sorted(events, key=lambda e: e.t):
+        if e.source == victim or e.t < t_fault - 1e-9:
+            continue
+        if e.what == "detour_start":
+            under_way[e.source] = [float(e.t), None]
+            spans.append(under_way[e.source])
+        elif e.what == "detour_end" and e.source in under_way:
+            under_way.pop(e.source)[1] = float(e.t)
+    merged: list[list[float | None]] = []
+    for a, b in sorted(spans, key=lambda sp: sp[0]):
+        last = merged[-1] if merged else None
+        if last is not None and (last[1] is None or a <= last[1] + 1e-9):
+            last[1] = None if last[1] is None or b is None else max(last[1], b)
+        else:
+            merged.append([a, b])
+    return merged
+
+
+def passes(res, scen: Scenario, victim: str, t_fault: float) -> list[dict[str, Any]] | None:
+    """The live robots' passes of the lost one and their re-coordination after each, from the
+    log: a pass is a stretch of time in which some live robot is on a detour begun after the
+    fault (``detour_start`` to ``detour_end`` events, docs/reference/detours.md; overlapping
+    detours of several robots are one pass, and the column going round a held robot on every lap
+    makes one pass per lap). Per pass: when its last detour ended (``end_s``, None if one was
+    still under way at the run's end) and the seconds from then until the coordination error
+    among the live robots (from the truth, docs/reference/metrics.md, M2) is below
+    :data:`~orchestrator.studies.bench.chaos.COORD_TOL_M` and stays there for
+    :data:`~orchestrator.studies.bench.chaos.HOLD_S`, or until the next pass begins, or to the
+    run's end (``recoord_s``; None: never), and how long that was (``window_s``: a pass that
+    ended less than :data:`RECOORD_GOAL_S` before the next one or the run's end, and is not
+    back yet, cannot be graded). Without a detour the fault itself is the pass.
+    None where the family grades no coordination (Chapter 6 role teams)."""
+    ser = truth_series(res.trace, scen)
+    if ser is None or ser.coordination_error is None:
+        return None
+    episodes = pass_spans(res.trace.events, victim, t_fault)
+    if not episodes:
+        episodes = [[t_fault, t_fault]]
+    out = []
+    for k, (_, end) in enumerate(episodes):
+        nxt = episodes[k + 1][0] if k + 1 < len(episodes) else None
+        window = None if end is None else float((ser.t[-1] if nxt is None else nxt) - end)
+        out.append({"end_s": None if end is None else round(end, 2),
+                    "recoord_s": None if end is None else held_below(ser.t, ser.coordination_error, end, nxt),
+                    "window_s": None if window is None else round(window, 2)})
+    return out
 
 
 def baseline(scen: Scenario, duration_s: float) -> dict[str, float]:
@@ -104,6 +168,7 @@ def run_case(scen: Scenario, fault: str, victim: str, t_fault: float, duration_s
     res = run_scenario(scen, duration_s=duration_s, run_id="sweep",
                        kills={victim: t_fault} if fault == "kill" else None)
     f = res.metrics["fleet"]
+    passed = passes(res, scen, victim, t_fault)
     share = None
     if free:
         got = progress(res, scen)
@@ -113,7 +178,54 @@ def run_case(scen: Scenario, fault: str, victim: str, t_fault: float, duration_s
             "coordination_error_max_m": f.get("coordination_error_max_m"),
             "tasks": None if f.get("tasks_total") is None else f"{f['tasks_completed']}/{f['tasks_total']}",
             "progress": share, "progress_min": min(share.values()) if share else None,
-            "detours": sum(r.get("detours") or 0 for r in res.metrics["robots"].values())}
+            "detours": sum(r.get("detours") or 0 for r in res.metrics["robots"].values()),
+            "passes": passed, "recoord_after_pass_max_s": _worst_recoord(passed)}
+
+
+def _worst_recoord(passed: list[dict[str, Any]] | None) -> float | None:
+    """The slowest re-coordination over the passes that ended [s]; None where coordination is
+    not graded, where no pass ended (the live robots never got past) or where one never
+    re-coordinated: a run that does not meet the goal is not given a figure that looks like one.
+    A pass still under way at the run's end (the next lap's, in a column that goes round a held
+    robot on every lap), or one that ended too close to it (:func:`_graded`), is left out."""
+    ended = [p for p in (passed or ()) if _graded(p)]
+    if not ended or any(p["recoord_s"] is None for p in ended):
+        return None
+    return max(p["recoord_s"] for p in ended)
+
+
+def _graded(p: dict[str, Any]) -> bool:
+    """A pass that can be graded: it ended, and it re-coordinated or had :data:`RECOORD_GOAL_S`
+    to do so before the next pass or the run's end."""
+    return p["end_s"] is not None and (p["recoord_s"] is not None or p["window_s"] >= RECOORD_GOAL_S - 1e-9)
+
+
+def _slow_recoord(row: dict[str, Any]) -> bool:
+    """The run misses the goal of re-coordinating within 20 s after the live robots have passed
+    (graded once a pass has ended: :func:`_unpassed` counts the others)."""
+    return not _unpassed(row) and row["passes"] is not None and (
+        row["recoord_after_pass_max_s"] is None or row["recoord_after_pass_max_s"] > RECOORD_GOAL_S)
+
+
+def _unpassed(row: dict[str, Any]) -> bool:
+    """Coordination is graded but no pass can be: none ended, or none ended long enough before
+    the run did and re-coordinated (a run too short for the goal, or robots stuck at the lost
+    one; their progress says which)."""
+    return row["passes"] is not None and not any(_graded(p) for p in row["passes"])
+
+
+def _recoord_text(row: dict[str, Any]) -> str:
+    """The table's re-coordination column: the slowest pass, or why there is no figure."""
+    if row["passes"] is None:
+        return ""
+    n = len(row["passes"])
+    if row["recoord_after_pass_max_s"] is None:
+        if any(_graded(p) for p in row["passes"]):
+            return f"  passes {n}  recoord never"
+        ended = any(p["end_s"] is not None for p in row["passes"])
+        return f"  passes {n}  recoord " + ("not graded: the run ended within 20 s of the pass" if ended
+                                            else "not graded: still passing at the end")
+    return f"  passes {n}  recoord <= {row['recoord_after_pass_max_s']:.1f} s"
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -125,6 +237,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--victims", nargs="+", metavar="ROBOT", help="robots to fail instead of each scenario's listed ones")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                     help="a scenario override for every run, e.g. run.cut_off=drive")
+    ap.add_argument("--after", type=number("--after"), default=AFTER_S, metavar="S",
+                    help=f"every run lasts at least this long after its fault [s] (default {AFTER_S:g})")
     ap.add_argument("--json", action="store_true", help="one JSON document instead of the table")
     args = ap.parse_args(argv)
     cases = [(api.load(config(prefix), overrides=args.set), tuple(args.times or times), duration,
@@ -143,7 +257,7 @@ def main(argv: list[str] | None = None) -> int:
         for fault in args.faults:
             for victim in victims:
                 for t in times:
-                    length = run_length(duration, t)
+                    length = run_length(duration, t, args.after)
                     if length not in free:
                         free[length] = baseline(scen, length)
                     row = run_case(scen, fault, victim, t, length, free[length])
@@ -154,15 +268,22 @@ def main(argv: list[str] | None = None) -> int:
                               f"{row['collisions']:2d}  min sep {row['min_separation_m']:.3f} m  "
                               + (f"coord {c:.3f} m" if c is not None else f"tasks {row['tasks']}")
                               + (f"  progress >= {100 * p:.0f} %" if p is not None else "")
-                              + f"  detours {row['detours']}", flush=True)
+                              + f"  detours {row['detours']}"
+                              + _recoord_text(row), flush=True)
     hit = sum(r["collisions"] > 0 for r in rows)
     short = sum(r["progress_min"] is not None and r["progress_min"] < 0.9 for r in rows)
+    slow = sum(_slow_recoord(r) for r in rows)
+    unpassed = sum(_unpassed(r) for r in rows)
     if args.json:
         print(json.dumps({"runs": rows, "runs_with_contact": hit, "runs_below_90_percent_progress": short,
+                          "runs_not_recoordinated_within_20s_of_the_pass": slow,
+                          "runs_with_no_pass_to_grade": unpassed,
                           "wall_s": round(time.perf_counter() - t0, 1)}))
     else:
         print(f"{len(rows)} runs, {hit} with contact, {short} with a live robot below 90 % of its progress "
-              f"without the failure, {time.perf_counter() - t0:.0f} s")
+              f"without the failure, {slow} not back in coordination within {RECOORD_GOAL_S:.0f} s of the pass "
+              f"({unpassed} more with no pass to grade), "
+              f"{time.perf_counter() - t0:.0f} s")
     return 0
 
 

@@ -112,7 +112,7 @@ class AgentNode:
     def _on_peer(self, key: str, rec) -> None:
         if isinstance(rec, PeerEnvelope):
             self.peers.append(rec)
-            if self.clock == "realtime" and self.started.is_set():  # stamp (control instant) to arrival
+            if self.clock == "realtime" and self.started.is_set() and self.rt.listens_to(rec.sender):  # stamp to arrival
                 self._ages.append(time.time() - self.wall_t0 - rec.stamp)
             if not self.inline:
                 with self._arrived:
@@ -143,9 +143,18 @@ class AgentNode:
                 self._arrived.notify()
 
     def _also_peer_key(self, key: str) -> bool:
+        """Whether an overheard ``key`` also goes the peer way (:meth:`_on_peer`): a key this robot
+        subscribes to as a peer, or, on a fixed graph, any robot's broadcast or message to this
+        one, which the runtime counts for the barrier and passes on while that robot stands in
+        for a lost neighbour (:attr:`RobotRuntime.stand_ins`; docs/reference/faults.md,
+        "Stand-ins for a lost neighbour")."""
         hit = self._also_peer.get(key)
         if hit is None:
-            hit = self._also_peer[key] = any(key_matches(key, e) for e in self._peer_exprs)
+            rel = relative_key(key)
+            hit = self._also_peer[key] = (
+                any(key_matches(key, e) for e in self._peer_exprs)
+                or (self.rt.neighbours is not None and len(rel) >= 3 and rel[0] == "peer"
+                    and (rel[2:] == ["all"] or rel[2:] == ["to", self.rt.name])))
         return hit
 
     def _on_overheard(self, key: str, rec) -> None:

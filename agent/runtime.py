@@ -40,6 +40,7 @@ from agent.controllers import build_controller, resolve_controller
 from copath.config import ConfigError
 from copath.control import Observation, RobotContext
 from copath.detour import DetourPlanner
+from copath.graph import stand_ins
 from copath.safety import acknowledged
 from copath.scenario import Scenario
 from copath.wire.keys import Keys
@@ -144,6 +145,15 @@ class RobotRuntime:
         self.overheard_from: dict[str, int] = {}
         """Overheard envelopes that arrived from each sender (every key), refused ones included,
         counted while :attr:`awaits_overheard` (:meth:`missing`)."""
+        self._graph = ({r.name: tuple(r.neighbours) for r in scenario.robots}
+                       if self.neighbours is not None else None)
+        """The fixed graph, every robot's neighbours (None: range-limited)."""
+        self.stand_ins: frozenset[str] = frozenset()
+        """Live robots this one listens to in place of its lost neighbours (:func:`copath.graph.stand_ins`;
+        docs/reference/faults.md, "Stand-ins for a lost neighbour"): their messages reach the
+        controller and the lockstep barrier waits for them, as for a neighbour's."""
+        self._stand_ins_for: frozenset[str] = frozenset()
+        """The lost robots :attr:`stand_ins` were found for."""
         self._written_off: dict[str, tuple[int, float]] = {}
         """Per sender, the messages the lockstep barrier gave up on and the tick time they were
         stamped before (:meth:`write_off`): one of them arriving after all is not counted twice."""
@@ -288,7 +298,7 @@ class RobotRuntime:
                     out[sender] = n - got
             return out
         for sender, n in expect.items():
-            if sender == self.name or (self.neighbours is not None and sender not in self.neighbours):
+            if sender == self.name or not self.listens_to(sender):
                 continue
             got = self.received_from.get(sender, 0)
             if got < n:
@@ -321,6 +331,11 @@ class RobotRuntime:
             del self._written_off[env.sender]
         return True
 
+    def listens_to(self, sender: str) -> bool:
+        """Whether ``sender``'s messages reach this robot's controller: a neighbour, a stand-in
+        for a lost one, or anyone on a range-limited graph."""
+        return self.neighbours is None or sender in self.neighbours or sender in self.stand_ins
+
     def refused(self, sender: str) -> None:
         """A message on ``sender``'s key arrived and was refused (schema, origin or stamp):
         delivered-and-dropped for the lockstep barrier (:meth:`missing`), so it is not
@@ -328,7 +343,8 @@ class RobotRuntime:
         the key, which names the sender: a refused message's own fields cannot be trusted."""
         if sender != self.name and sender in self._team:
             self.received_from[sender] = self.received_from.get(sender, 0) + 1
-            self.counters.add("refused_from_peers")
+            if self.listens_to(sender):  # else overheard, counted by the safety stage's trust
+                self.counters.add("refused_from_peers")
 
     def peer_alive(self, name: str, alive: bool) -> None:
         """A robot's liveliness changed (its process died or froze, or it came back)."""
@@ -338,6 +354,12 @@ class RobotRuntime:
         """Accept a peer envelope that arrived (before faults); one stamped outside the
         receiver's :class:`~copath.wire.trust.StampWindow` is rejected and counted."""
         if env.sender == self.name:
+            return
+        if not self.listens_to(env.sender):
+            # overheard on a key it would listen to were the sender its neighbour: counted, so
+            # that the barrier knows what arrived should the sender become a stand-in
+            if self.awaits_overheard or not self._arrived_late(env):
+                self.received_from[env.sender] = self.received_from.get(env.sender, 0) + 1
             return
         if self.trust.keep_early(env):  # no clock yet (a robot restarted mid-run)
             return
@@ -366,6 +388,10 @@ class RobotRuntime:
             self.safety.hear(released.envelopes)
         alive = self.liveness.update(now, lost)  # liveness
         events = alive.events
+        if self._graph is not None and alive.lost != self._stand_ins_for:
+            self._stand_in(alive.lost, now, events)
+        if self.stand_ins:  # the closing account says how much of the inbox they made
+            self.counters.add("stand_in_messages", sum(m.sender in self.stand_ins for m in released.messages))
         held = self.hold.held(alive.cut_off)
         ranges = None if obs.ranges is None else np.asarray(obs.ranges, dtype=float)
         seen, detour_offset = self.detour.step(now, pose, ranges, self._angles, released.messages, events,  # detour
@@ -397,6 +423,18 @@ class RobotRuntime:
             estimate,
             self.faults.events(now) + events + ([res.failure] if res.failure is not None else []),
         )
+
+    def _stand_in(self, lost: frozenset[str], now: float, events: list[Event]) -> None:
+        """Listen to the stand-ins for the robots lost now (:func:`copath.graph.stand_ins`); an
+        event says who stands in for whom when they change."""
+        self._stand_ins_for = lost
+        found = frozenset(stand_ins(self._graph, self.name, lost))
+        if found != self.stand_ins:
+            self.stand_ins = found
+            if self.safety is not None:
+                self.safety.listening(found)
+            events.append(Event(float(now), self.name, "stand_ins",
+                                {"robots": sorted(found), "lost": sorted(n for n in lost if n in self.neighbours)}))
 
     def closing_counters(self) -> dict:
         self.control.close()

@@ -65,10 +65,16 @@ class SafetyStage:
         self._trust = trust
         self._faults = faults
         self._counters = counters
+        self._neighbours = listened
         self._listened = listened
+        """Senders whose envelopes also reach the robot's inbox (whose trust stage counts their bad stamps)."""
         self._early: dict[str, PeerEnvelope] = {}
         """Before the first step: the newest overheard envelope of each sender (:meth:`overhear`)."""
-        """Senders whose envelopes also reach the robot's inbox (whose trust stage counts their bad stamps)."""
+
+    def listening(self, stand_ins: frozenset[str]) -> None:
+        """The robot's inbox now also gets the envelopes of ``stand_ins`` (robots it listens to
+        in place of lost neighbours, :func:`copath.graph.stand_ins`): their bad stamps are counted there."""
+        self._listened = self._neighbours | stand_ins
 
     @property
     def overhearing(self) -> bool:

@@ -52,6 +52,12 @@ def test_a_column_goes_round_its_silent_front_robot_held_on_the_lane_over_zenoh_
     assert set(starts) == {"r2", "r3", "r4", "r5", "r6"} and all(d["reason"] == "held" for d in starts.values())
     ends = {src: d for src, what, d in events if what == "detour_end"}
     assert set(ends) == set(starts) and not any(d["abandoned"] for d in ends.values())
+    # r1's neighbours r3 and r4 listen to each other once it is quiet (docs/reference/faults.md,
+    # "Stand-ins for a lost neighbour"): over Zenoh as in one process, the barrier waiting for
+    # their messages as for a neighbour's
+    stand = sorted((src, d["robots"]) for src, what, d in events if what == "stand_ins")
+    assert stand == [("r3", ["r4"]), ("r4", ["r3"])], stand
+    assert m["robots"]["r4"]["path_progress_m"] == pytest.approx(ref["robots"]["r4"]["path_progress_m"], abs=1e-6)
 
 
 def test_box_on_lane_column_in_realtime_over_zenoh(tmp_path):

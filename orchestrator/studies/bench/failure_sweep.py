@@ -125,7 +125,7 @@ def passes(res, scen: Scenario, victim: str, t_fault: float) -> list[dict[str, A
     detours of several robots are one pass, and the column going round a held robot on every lap
     makes one pass per lap). Per pass: when its last detour ended (``end_s``, None if one was
     still under way at the run's end) and the seconds from then until the coordination error
-    among the live robots (from the truth, docs/reference/metrics.md, M2) is below
+    among the live robots (from the truth, docs/reference/metrics.md, coordination error (M2)) is below
     :data:`~orchestrator.studies.bench.chaos.COORD_TOL_M` and stays there for
     :data:`~orchestrator.studies.bench.chaos.HOLD_S`, or until the next pass begins, or to the
     run's end (``recoord_s``; None: never), and how long that was (``window_s``: a pass that

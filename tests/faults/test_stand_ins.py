@@ -1,0 +1,74 @@
+"""Stand-ins for a lost neighbour (copath/graph.py, agent/runtime.py; docs/reference/faults.md,
+"Stand-ins for a lost neighbour"), in one process: a robot whose neighbour is lost listens to
+that neighbour's own neighbours, so the live graph stays connected and the team coordinates.
+Over Zenoh, in both clocks: tests/faults/test_restart_realtime.py and
+tests/integration/test_detours_fleet.py."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from copath.scenario import load_scenario
+from orchestrator.analysis.truth import truth_series
+from orchestrator.run.inprocess import run_scenario
+from tests.conftest import config
+
+pytestmark = [pytest.mark.faults, pytest.mark.timeout(120)]
+
+
+def _events(res, what="stand_ins"):
+    return [(r.source, round(float(r.t), 2), r.detail) for _, _, r in res.records
+            if getattr(r, "TYPE", "") == "event" and r.what == what]
+
+
+def _stats(res):
+    return {r.proc: r.counters for _, _, r in res.records if getattr(r, "TYPE", "") == "stats"}
+
+
+def _gap_after(res, scen, a: str, b: str, t0: float) -> float:
+    ser = truth_series(res.trace, scen)
+    return float(np.abs(np.asarray(ser.xi[a]) - np.asarray(ser.xi[b]))[ser.t > t0].max())
+
+
+@pytest.fixture(scope="module")
+def e54():
+    return load_scenario(config("e5.4-six-robots-lemniscate")).with_overrides(run={"on_robot_failure": "continue"})
+
+
+def test_r4_cut_off_by_r1_s_death_listens_to_r3_and_keeps_its_place(e54):
+    """E5.4's graph is the path r4 - r1 - r3 - r6 - r5 - r2: with r1 killed at 10 s, r4 had no
+    live neighbour, and no law closed its 0.03 m gap to the others. r3 and r4 now stand in for
+    each other from the tick r1 is found lost; every one of the other's messages reaches them
+    (one a tick, none written off by the barrier) and r4 holds its place behind r3."""
+    res = run_scenario(e54, duration_s=60.0, kills={"r1": [10.0]})
+    assert _events(res) == [("r3", 10.1, {"robots": ["r4"], "lost": ["r1"]}),
+                            ("r4", 10.1, {"robots": ["r3"], "lost": ["r1"]})]
+    stats = _stats(res)
+    for n in ("r3", "r4"):
+        assert 490 <= stats[n]["stand_in_messages"] <= 500, (n, stats[n])  # 499 ticks from 10.1 s to 60 s
+    assert not any(c.get("barrier_timeouts") for c in stats.values())  # the barrier counted them exactly
+    assert all("stand_in_messages" not in stats[n] for n in ("r2", "r5", "r6"))
+    assert _gap_after(res, e54, "r4", "r3", 40.0) < 0.01  # measured 0.005 m
+
+
+def test_without_stand_ins_the_cut_off_robot_drifts(e54, monkeypatch):
+    """The same run with the repair taken out (the graph as configured): r4 is 0.03 m off r3 from
+    40 s to the end, the figure the repair closes."""
+    monkeypatch.setattr("agent.runtime.stand_ins", lambda *a: ())
+    res = run_scenario(e54, duration_s=60.0, kills={"r1": [10.0]})
+    assert _events(res) == []
+    assert _gap_after(res, e54, "r4", "r3", 40.0) > 0.025  # measured 0.033 m
+
+
+def test_stand_ins_end_when_the_lost_robot_is_back():
+    """E5.5's column r1 - r2 - r3 with r2 killed at 6 s and restarted at 7 s: r1 and r3 listen to
+    each other while it is lost and stop when it is heard again."""
+    scen = load_scenario(config("e5.5-column-lemniscate")).with_overrides(run={"on_robot_failure": "restart"})
+    res = run_scenario(scen, duration_s=12.0, kills={"r2": [6.0]}, restarts={"r2": [7.0]})
+    got = _events(res)
+    for n, other in (("r1", "r3"), ("r3", "r1")):
+        mine = [(t, d["robots"]) for src, t, d in got if src == n]
+        assert [r for _, r in mine] == [[other], []], got
+        assert 6.0 <= mine[0][0] < 7.0 < mine[1][0] < 9.0, mine
+    assert not any(c.get("barrier_timeouts") for c in _stats(res).values())

@@ -541,6 +541,13 @@ class MPCSolver:
         self._plan_w = self._lam_x = self._lam_g = None
         self._fallback_plan = self._fallback_x = None
 
+    def take_warm_start(self, other: "MPCSolver") -> None:
+        """Warm-start from ``other``'s last solve: a solver of the same decision variables and
+        constraints whose parameters differ (the distributed MPC's coupling slots for a stand-in
+        neighbour, agent/controllers/dmpc/controller.py)."""
+        self._plan_w, self._lam_x, self._lam_g = other._plan_w, other._lam_x, other._lam_g
+        self._fallback_plan, self._fallback_x = other._fallback_plan, other._fallback_x
+
     def set_initial_guess(self, X: np.ndarray, U: np.ndarray) -> None:
         """Warm-start the next solve from a given plan (e.g. a rollout of a simple law)."""
         o = self.ocp

@@ -108,9 +108,15 @@ def test_neighbour_messages_newest_wins_and_wrap_near_own_progress():
     assert stamp == 2.0 and traj.values[0] == pytest.approx(L + 0.1)
     # a lap ahead on the closed path is the same place
     np.testing.assert_allclose(ctrl._wrap_near(np.array([L + 0.1]), np.array([0.0])), [0.1])
-    ignored = PeerMessage("r3", "assumed_traj", 3.0, 0.05, {"t0": 3.0, "dt": DT, "s_hat": [1.0, 1.1]})
-    ctrl._receive([ignored], 2.1)  # not a neighbour
-    assert "r3" not in ctrl.neighbour_traj
+    # a robot that is not a neighbour reaches the controller only as a stand-in for a lost one
+    # (the runtime's choice, docs/reference/faults.md, "Stand-ins for a lost neighbour"): coupled
+    # while its trajectory is fresh, in a problem built for one more term, then dropped again
+    stand_in = PeerMessage("r3", "assumed_traj", 3.0, 0.05, {"t0": 3.0, "dt": DT, "s_hat": [1.0, 1.1]})
+    ctrl._receive([stand_in], 3.05)
+    assert "r3" in ctrl.neighbour_traj
+    one = ctrl.mpc
+    assert ctrl._slots(3.05) == ("r2", "r3") and ctrl.mpc is not one and ctrl.mpc.ocp.n_p == one.ocp.n_p + 2
+    assert ctrl._slots(3.0 + ctrl.cfg.stale_after_s + 0.1) == ("r2",) and ctrl.mpc is one
 
 
 def test_lost_neighbour_leaves_the_robot_working():

@@ -271,19 +271,44 @@ class DMPCController:
         self.psi_d = cfg.offset(ctx.name)
         self.dt = ctx.dt
         self.table = self.path.table()
-        self.mpc = MPCSolver(
-            _ocp(cfg, len(self.nbrs), self.dt, self.q, self.morph.scale, ctx.model.M, ctx.model.qdot_max),
-            _capped(cfg.solver_config(), cfg.max_solve_periods * ctx.dt if ctx.realtime else 0.0),
-        )
+        self.mpc = self._solver(len(self.nbrs))
+        self._mpcs = {len(self.nbrs): self.mpc}
+        """The solver for each number of coupling slots built so far (:meth:`_slots`)."""
+        self.slots = self.nbrs
+        """The robots of this step's coupling terms: the neighbours, then any stand-ins."""
         self.s: float | None = cfg.s0
         self.theta_t: float | None = None
         self.u_R = 0.0
-        self.inbox = LatestMessages(kinds=(MESSAGE_KIND,), senders=self.nbrs, decode=self._decode)
+        # every sender the runtime passes on: the neighbours, and the stand-ins for a lost one
+        self.inbox = LatestMessages(kinds=(MESSAGE_KIND,), decode=self._decode)
         self.own_assumed: AssumedTrajectory | None = None
         self._last: tuple[float, np.ndarray] | None = None  # (t_k, predicted X) of the last solve
         self.k = 0
 
     # -- helpers ---------------------------------------------------------------------
+    def _solver(self, n_nbr: int) -> MPCSolver:
+        cfg, ctx = self.cfg, self.ctx
+        return MPCSolver(_ocp(cfg, n_nbr, self.dt, self.q, self.morph.scale, ctx.model.M, ctx.model.qdot_max),
+                         _capped(cfg.solver_config(), cfg.max_solve_periods * ctx.dt if ctx.realtime else 0.0))
+
+    def _slots(self, t: float) -> tuple[str, ...]:
+        """The robots coupled at this step: the neighbours, and every other robot with a fresh
+        assumed trajectory in the inbox, which the runtime passes on only from a stand-in for a
+        lost neighbour (docs/reference/faults.md, "Stand-ins for a lost neighbour"). (5.18) is
+        built for a number of coupling terms: the problem for more is built when first needed
+        (0.2 s for E5.2's robots) and warm-started from the last solve."""
+        extra = sorted(g.sender for g in self.inbox.of_kind(MESSAGE_KIND).values()
+                       if g.sender not in self.nbrs and t - g.stamp <= self.cfg.stale_after_s)
+        slots = self.nbrs + tuple(extra)
+        if len(slots) != len(self.slots):
+            mpc = self._mpcs.get(len(slots))
+            if mpc is None:
+                mpc = self._mpcs[len(slots)] = self._solver(len(slots))
+            mpc.take_warm_start(self.mpc)
+            self.mpc = mpc
+        self.slots = slots
+        return slots
+
     def _u_r(self, kap) -> Any:
         return self.u_o * (1.0 - kap * self.q)  # (5.11)
 
@@ -357,7 +382,8 @@ class DMPCController:
             s,
         ])
         times = obs.t + dt * np.arange(N)
-        P = np.zeros((N, 5 + 2 * len(self.nbrs)))
+        slots = self._slots(obs.t)
+        P = np.zeros((N, 5 + 2 * len(slots)))
         P[:, 0] = kap
         P[:, 1] = self.u_o
         if self.own_assumed is not None:  # compatibility constraint from k >= 1
@@ -366,7 +392,7 @@ class DMPCController:
         P[1:, 4] = 1.0  # wheel limits from k >= 1 (x_0 and its speed are given)
         psi_guess = self.morph.psi(s_guess[:N])
         used = 0
-        for j, name in enumerate(self.nbrs):
+        for j, name in enumerate(slots):
             got = self.inbox.get(name, MESSAGE_KIND)
             if got is None or obs.t - got.stamp > cfg.stale_after_s:
                 continue

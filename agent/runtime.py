@@ -154,6 +154,10 @@ class RobotRuntime:
         controller and the lockstep barrier waits for them, as for a neighbour's."""
         self._stand_ins_for: frozenset[str] = frozenset()
         """The lost robots :attr:`stand_ins` were found for."""
+        self._stand_in_since: dict[str, float] = {}
+        """When each stand-in began [s]: its messages stamped before are not passed on."""
+        self._overheard_last: dict[str, PeerEnvelope] = {}
+        """On a fixed graph, the newest envelope of each robot it does not listen to (:meth:`receive`)."""
         self._written_off: dict[str, tuple[int, float]] = {}
         """Per sender, the messages the lockstep barrier gave up on and the tick time they were
         stamped before (:meth:`write_off`): one of them arriving after all is not counted twice."""
@@ -357,9 +361,13 @@ class RobotRuntime:
             return
         if not self.listens_to(env.sender):
             # overheard on a key it would listen to were the sender its neighbour: counted, so
-            # that the barrier knows what arrived should the sender become a stand-in
+            # that the barrier knows what arrived should the sender become a stand-in, and the
+            # newest kept for that step (:meth:`_stand_in`)
             if self.awaits_overheard or not self._arrived_late(env):
                 self.received_from[env.sender] = self.received_from.get(env.sender, 0) + 1
+            kept = self._overheard_last.get(env.sender)
+            if kept is None or env.stamp >= kept.stamp:
+                self._overheard_last[env.sender] = env
             return
         if self.trust.keep_early(env):  # no clock yet (a robot restarted mid-run)
             return
@@ -368,6 +376,9 @@ class RobotRuntime:
             return
         if self.awaits_overheard or not self._arrived_late(env):  # else the barrier counts in overhear()
             self.received_from[env.sender] = self.received_from.get(env.sender, 0) + 1
+        since = self._stand_in_since.get(env.sender)
+        if since is not None and env.stamp < since - 1e-9:
+            return  # sent before it stood in: in one process it came and went before (lockstep runs agree)
         self.faults.push(env)
 
     # -- one control instant: the pipeline ------------------------------------------------
@@ -430,6 +441,16 @@ class RobotRuntime:
         self._stand_ins_for = lost
         found = frozenset(stand_ins(self._graph, self.name, lost))
         if found != self.stand_ins:
+            for s in sorted(found - self.stand_ins):
+                # its message of this very instant may have come already (in one process, from
+                # the robots that step earlier; over Zenoh, as it happens): passed on at the next
+                # step either way, and none from before (:meth:`receive`), so lockstep runs agree
+                self._stand_in_since[s] = now
+                kept = self._overheard_last.pop(s, None)
+                if kept is not None and kept.stamp >= now - 1e-9 and self.trust.admit(kept, "peer", record=False):
+                    self.faults.push(kept)
+            for s in self.stand_ins - found:
+                self._stand_in_since.pop(s, None)
             self.stand_ins = found
             if self.safety is not None:
                 self.safety.listening(found)

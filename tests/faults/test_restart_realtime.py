@@ -91,18 +91,22 @@ def test_a_killed_robot_restarts_and_commands_again_over_zenoh(tmp_path, procs, 
              if getattr(r, "TYPE", "") == "event" and r.what == "detour_start"
              and r.detail.get("reason") == "held" and r.t < lost[0] + 1.9]
     assert early == [], early
-    # r1 and r3, whose one link between them was r2, listened to each other while it was lost
-    # and stopped when it was back (docs/reference/faults.md, "Stand-ins for a lost neighbour"),
-    # and each other's messages reached their controllers over Zenoh meanwhile
+    # r1 and r3, whose one link between them was r2, listen to each other while it is lost and
+    # stop when it is back (docs/reference/faults.md, "Stand-ins for a lost neighbour"). In
+    # lockstep the run goes on while the process restarts; in realtime a killed robot is often
+    # back (token and all) before its neighbours' next step, and then none is needed
+    # (tests/faults/test_stand_ins.py kills one for good in realtime)
     stand = [(r.source, float(r.t), r.detail["robots"]) for _, _, r in log.records
              if getattr(r, "TYPE", "") == "event" and r.what == "stand_ins"]
     for n, other in (("r1", "r3"), ("r3", "r1")):
         mine = [(t, robots) for src, t, robots in stand if src == n]
-        assert [robots for _, robots in mine] == [[other], []], stand
-        assert lost[0] - 0.2 <= mine[0][0] <= mine[1][0] <= back[0].t + 2.0, (mine, lost, back[0].t)
-    heard = {r.proc: r.counters.get("stand_in_messages", 0) for _, _, r in log.records
-             if getattr(r, "TYPE", "") == "stats" and r.proc in ("r1", "r3")}
-    assert heard["r1"] + heard["r3"] >= 1, heard
+        if clock == "lockstep" or mine:
+            assert [robots for _, robots in mine] == [[other], []], stand
+            assert lost[0] - 0.2 <= mine[0][0] <= mine[1][0] <= back[0].t + 2.0, (mine, lost, back[0].t)
+    if clock == "lockstep":
+        heard = {r.proc: r.counters.get("stand_in_messages", 0) for _, _, r in log.records
+                 if getattr(r, "TYPE", "") == "stats" and r.proc in ("r1", "r3")}
+        assert heard["r1"] >= 1 and heard["r3"] >= 1, (heard, stand)
     # the accounts survive the kill: nothing lost, the killed process counted to its last record
     f = m["fleet"]
     assert f["messages_lost"] == 0 and f["accounts_reconstructed"] == 1

@@ -72,3 +72,39 @@ def test_stand_ins_end_when_the_lost_robot_is_back():
         assert [r for _, r in mine] == [[other], []], got
         assert 6.0 <= mine[0][0] < 7.0 < mine[1][0] < 9.0, mine
     assert not any(c.get("barrier_timeouts") for c in _stats(res).values())
+
+
+@pytest.mark.fleet
+@pytest.mark.timeout(300)
+def test_stand_ins_over_zenoh_in_realtime(tmp_path, procs):
+    """E5.5 on the wall clock, r2 killed for good (``continue``) once the run is under way: r1
+    and r3, whose one link was r2, find it lost from its token and stand in for each other; each
+    other's messages reach their controllers (about one a period from then on) and the column
+    stays coordinated across the gap r2 left."""
+    import json
+    import os
+    import signal
+
+    from orchestrator.log.mcap import read_log
+    from orchestrator.testkit.processes import victim
+
+    p = procs.start(["-m", "orchestrator", "run", str(config("e5.5-")), "--out", str(tmp_path), "--run-id", "stand",
+                     "--duration", "40", "-q", "--no-plots", "--set", 'run.on_robot_failure="continue"',
+                     "--set", 'run.clock="realtime"'])
+    pid = victim(p, tmp_path, "r2", under_way_bytes=150_000)
+    os.kill(pid, signal.SIGKILL)
+    assert p.wait(timeout=240) == 0, p.stderr.read().decode()[-3000:]
+    m = json.loads((tmp_path / "metrics.json").read_text())
+    assert m["ok"] and m["fleet"]["collisions"] == 0
+    log = read_log(tmp_path / "run.mcap")
+    lost = [float(r.t) for _, _, r in log.records
+            if getattr(r, "TYPE", "") == "event" and r.what == "robot_lost" and r.detail.get("robot") == "r2"]
+    assert len(lost) == 1 and lost[0] < 25.0, lost
+    stand = {r.source: (float(r.t), r.detail) for _, _, r in log.records
+             if getattr(r, "TYPE", "") == "event" and r.what == "stand_ins"}
+    assert {n: d["robots"] for n, (_, d) in stand.items()} == {"r1": ["r3"], "r3": ["r1"]}, stand
+    assert all(lost[0] - 0.2 <= t <= lost[0] + 1.0 for t, _ in stand.values()), (stand, lost)
+    heard = {r.proc: r.counters.get("stand_in_messages", 0) for _, _, r in log.records
+             if getattr(r, "TYPE", "") == "stats" and r.proc in ("r1", "r3")}
+    periods = (40.0 - lost[0]) / 0.1  # E5.5's period
+    assert all(n >= 0.5 * periods for n in heard.values()), (heard, periods)

@@ -153,7 +153,7 @@ class AgentNode:
             rel = relative_key(key)
             hit = self._also_peer[key] = (
                 any(key_matches(key, e) for e in self._peer_exprs)
-                or (self.rt.neighbours is not None and len(rel) >= 3 and rel[0] == "peer"
+                or (self.rt.hears_stand_ins and len(rel) >= 3 and rel[0] == "peer"
                     and (rel[2:] == ["all"] or rel[2:] == ["to", self.rt.name])))
         return hit
 

@@ -145,9 +145,6 @@ class RobotRuntime:
         self.overheard_from: dict[str, int] = {}
         """Overheard envelopes that arrived from each sender (every key), refused ones included,
         counted while :attr:`awaits_overheard` (:meth:`missing`)."""
-        self._graph = ({r.name: tuple(r.neighbours) for r in scenario.robots}
-                       if self.neighbours is not None else None)
-        """The fixed graph, every robot's neighbours (None: range-limited)."""
         self.stand_ins: frozenset[str] = frozenset()
         """Live robots this one listens to in place of its lost neighbours (:func:`copath.graph.stand_ins`;
         docs/reference/faults.md, "Stand-ins for a lost neighbour"): their messages reach the
@@ -176,6 +173,10 @@ class RobotRuntime:
                        if scenario.safety.enabled else None)
         self.liveness = LivenessStage(scenario, name, self.cut_off_rule,
                                       overhearing=self.safety is not None and self.safety.overhearing)
+        self._graph = ({r.name: tuple(r.neighbours) for r in scenario.robots}
+                       if self.neighbours is not None and self.safety is not None and self.safety.overhearing else None)
+        """The fixed graph, every robot's neighbours, where stand-ins can be heard: their messages
+        are the ones overheard for the safety filter (None: range-limited, or nothing overheard)."""
         self.detour = DetourStage(scenario, name, detour_planner(scenario, name))
         self.control = ControlStage(controller, name, spec.model.command_size, self.counters)
         self.hold = HoldStage(self.cut_off_rule, spec.model.command_size)
@@ -334,6 +335,11 @@ class RobotRuntime:
         else:
             del self._written_off[env.sender]
         return True
+
+    @property
+    def hears_stand_ins(self) -> bool:
+        """Whether robots can stand in for a lost neighbour here (a fixed graph, overheard)."""
+        return self._graph is not None
 
     def listens_to(self, sender: str) -> bool:
         """Whether ``sender``'s messages reach this robot's controller: a neighbour, a stand-in

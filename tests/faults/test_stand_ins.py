@@ -108,3 +108,13 @@ def test_stand_ins_over_zenoh_in_realtime(tmp_path, procs):
              if getattr(r, "TYPE", "") == "stats" and r.proc in ("r1", "r3")}
     periods = (40.0 - lost[0]) / 0.1  # E5.5's period
     assert all(n >= 0.5 * periods for n in heard.values()), (heard, periods)
+
+
+def test_without_overhearing_there_are_no_stand_ins_and_the_barrier_waits_for_none(e54):
+    """Stand-ins are heard through what the safety filter overhears: with ``safety.overhear``
+    off a robot hears only its neighbours, so nobody stands in, and the lockstep barrier does not
+    wait for messages that cannot come (it would time out at every tick)."""
+    scen = e54.with_overrides(safety={"overhear": False})
+    res = run_scenario(scen, duration_s=20.0, kills={"r1": [10.0]})
+    assert _events(res) == []
+    assert not any(c.get("barrier_timeouts") for c in _stats(res).values())

@@ -151,6 +151,8 @@ class RobotRuntime:
         controller and the lockstep barrier waits for them, as for a neighbour's."""
         self._stand_ins_for: frozenset[str] = frozenset()
         """The lost robots :attr:`stand_ins` were found for."""
+        self._stood_in = False
+        """Some robot has stood in here (its messages may still be released after it stopped)."""
         self._stand_in_since: dict[str, float] = {}
         """When each stand-in began [s]: its messages stamped before are not passed on."""
         self._overheard_last: dict[str, PeerEnvelope] = {}
@@ -400,13 +402,18 @@ class RobotRuntime:
             pose, estimate = self.estimator.pose(obs, now, pose, self._last_cmd)
         lost = self.liveness.lost
         released = self.faults.release(now, pose, lost)  # faults
-        self.liveness.heard(released.senders, now)
+        # liveness watches the neighbours (a stand-in that goes quiet is not one of them: were it
+        # watched, it would be found silent once it stopped standing in)
+        self.liveness.heard(released.senders if self._graph is None or not self._stood_in
+                            else [s for s in released.senders if s in self.neighbours], now)
         if self.safety is not None:
             self.safety.hear(released.envelopes)
         alive = self.liveness.update(now, lost)  # liveness
         events = alive.events
-        if self._graph is not None and alive.lost != self._stand_ins_for:
-            self._stand_in(alive.lost, now, events)
+        # a robot cut off (it has lost every robot it heard) has nobody to stand in: they are quiet too
+        gone = frozenset() if alive.cut_off else alive.lost
+        if self._graph is not None and gone != self._stand_ins_for:
+            self._stand_in(gone, now, events)
         if self.stand_ins:  # the closing account says how much of the inbox they made
             self.counters.add("stand_in_messages", sum(m.sender in self.stand_ins for m in released.messages))
         held = self.hold.held(alive.cut_off)
@@ -458,6 +465,7 @@ class RobotRuntime:
             for s in self.stand_ins - found:
                 self._stand_in_since.pop(s, None)
             self.stand_ins = found
+            self._stood_in = self._stood_in or bool(found)
             if self.safety is not None:
                 self.safety.listening(found)
             events.append(Event(float(now), self.name, "stand_ins",

@@ -95,14 +95,16 @@ def test_a_killed_robot_restarts_and_commands_again_over_zenoh(tmp_path, procs, 
     # stop when it is back (docs/reference/faults.md, "Stand-ins for a lost neighbour"). In
     # lockstep the run goes on while the process restarts; in realtime a killed robot is often
     # back (token and all) before its neighbours' next step, and then none is needed
-    # (tests/faults/test_stand_ins.py kills one for good in realtime)
+    # (tests/faults/test_stand_ins.py kills one for good in realtime). A restarted robot whose
+    # token is back but that has not spoken for a lease is lost again by its silence, so they
+    # may stand in more than once, and always end
     stand = [(r.source, float(r.t), r.detail["robots"]) for _, _, r in log.records
              if getattr(r, "TYPE", "") == "event" and r.what == "stand_ins"]
     for n, other in (("r1", "r3"), ("r3", "r1")):
         mine = [(t, robots) for src, t, robots in stand if src == n]
         if clock == "lockstep" or mine:
-            assert [robots for _, robots in mine] == [[other], []], stand
-            assert lost[0] - 0.2 <= mine[0][0] <= mine[1][0] <= back[0].t + 2.0, (mine, lost, back[0].t)
+            assert mine and [robots for _, robots in mine] == [[other], []] * (len(mine) // 2), stand
+            assert lost[0] - 0.2 <= mine[0][0] and mine[-1][0] <= back[0].t + 3.0, (mine, lost, back[0].t)
     if clock == "lockstep":
         heard = {r.proc: r.counters.get("stand_in_messages", 0) for _, _, r in log.records
                  if getattr(r, "TYPE", "") == "stats" and r.proc in ("r1", "r3")}

@@ -151,8 +151,6 @@ class RobotRuntime:
         controller and the lockstep barrier waits for them, as for a neighbour's."""
         self._stand_ins_for: frozenset[str] = frozenset()
         """The lost robots :attr:`stand_ins` were found for."""
-        self._stood_in = False
-        """Some robot has stood in here (its messages may still be released after it stopped)."""
         self._stand_in_since: dict[str, float] = {}
         """When each stand-in began [s]: its messages stamped before are not passed on."""
         self._overheard_last: dict[str, PeerEnvelope] = {}
@@ -402,10 +400,7 @@ class RobotRuntime:
             pose, estimate = self.estimator.pose(obs, now, pose, self._last_cmd)
         lost = self.liveness.lost
         released = self.faults.release(now, pose, lost)  # faults
-        # liveness watches the neighbours (a stand-in that goes quiet is not one of them: were it
-        # watched, it would be found silent once it stopped standing in)
-        self.liveness.heard(released.senders if self._graph is None or not self._stood_in
-                            else [s for s in released.senders if s in self.neighbours], now)
+        self.liveness.heard(released.senders, now)
         if self.safety is not None:
             self.safety.hear(released.envelopes)
         alive = self.liveness.update(now, lost)  # liveness
@@ -465,7 +460,6 @@ class RobotRuntime:
             for s in self.stand_ins - found:
                 self._stand_in_since.pop(s, None)
             self.stand_ins = found
-            self._stood_in = self._stood_in or bool(found)
             if self.safety is not None:
                 self.safety.listening(found)
             events.append(Event(float(now), self.name, "stand_ins",

@@ -56,6 +56,11 @@ class LivenessStage:
         self.silent_after_s = float(scenario.run.lease_s)
         """Silence threshold [s]: the run's transport lease, as for a frozen process."""
         self._team = frozenset(scenario.robot_names) - {name}
+        spec = scenario.robot(name)
+        self._watched = frozenset(spec.neighbours) if scenario.network.range_m == 0 else None
+        """The robots whose silence it watches: its neighbours on a fixed graph (not a robot that
+        stands in for a lost one, docs/reference/faults.md, "Stand-ins for a lost neighbour": it
+        would be found silent once it stopped standing in), every robot on a range-limited one."""
         """Every other robot of the scenario. Having lost every one of them it has heard (in its
         inbox or overheard) is being cut off; one it never heard cannot be lost."""
         self._heard: dict[str, float] = {}
@@ -83,9 +88,11 @@ class LivenessStage:
             self.lost = self.lost - {name} if alive else self.lost | {name}  # replaced whole: thread-safe read
 
     def heard(self, senders: Iterable[str], now: float) -> None:
-        """Senders whose envelopes the fault layer released at ``now``."""
+        """Senders whose envelopes the fault layer released at ``now`` (the watched ones count)."""
+        watched = self._watched
         for s in senders:
-            self._heard[s] = now
+            if watched is None or s in watched:
+                self._heard[s] = now
 
     def overheard_all(self, senders: Iterable[str], now: float) -> None:
         """Overheard envelopes of ``senders`` reached the safety filter at ``now``."""

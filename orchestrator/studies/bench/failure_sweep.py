@@ -41,7 +41,7 @@ from copath.slots import track_coordinate
 from orchestrator import api
 from orchestrator.analysis.truth import truth_series
 from orchestrator.run.inprocess import run_scenario
-from orchestrator.studies.bench.chaos import COORD_TOL_M, HOLD_S, held_below
+from orchestrator.studies.bench.chaos import held_below
 from orchestrator.studies.bench.harness import number
 from orchestrator.testkit.scenarios import config
 
@@ -82,10 +82,10 @@ def run_length(duration_s: float, t_fault: float, after_s: float = AFTER_S) -> f
     return max(float(duration_s), float(t_fault) + after_s)
 
 
-def progress(res, scen: Scenario) -> dict[str, float]:
+def progress(res, scen: Scenario, ser=None) -> dict[str, float]:
     """How far each robot with a path truly got along it [m]: its path coordinate at the end
     less at the start (docs/reference/metrics.md, path coordinate of a true position (M1)), from the truth."""
-    ser = truth_series(res.trace, scen)
+    ser = ser if ser is not None else truth_series(res.trace, scen)
     if ser is not None:
         S = ser.s
     else:
@@ -118,7 +118,7 @@ def pass_spans(events, victim: str, t_fault: float) -> list[list[float | None]]:
     return merged
 
 
-def passes(res, scen: Scenario, victim: str, t_fault: float) -> list[dict[str, Any]] | None:
+def passes(res, scen: Scenario, victim: str, t_fault: float, ser=None) -> list[dict[str, Any]] | None:
     """The live robots' passes of the lost one and their re-coordination after each, from the
     log: a pass is a stretch of time in which some live robot is on a detour begun after the
     fault (``detour_start`` to ``detour_end`` events, docs/reference/detours.md; overlapping
@@ -131,8 +131,9 @@ def passes(res, scen: Scenario, victim: str, t_fault: float) -> list[dict[str, A
     run's end (``recoord_s``; None: never), and how long that was (``window_s``: a pass that
     ended less than :data:`RECOORD_GOAL_S` before the next one or the run's end, and is not
     back yet, cannot be graded). Without a detour the fault itself is the pass.
-    None where the family grades no coordination (Chapter 6 role teams)."""
-    ser = truth_series(res.trace, scen)
+    None where the family grades no coordination (Chapter 6 role teams). ``ser``: the run's
+    truth series when the caller has it already."""
+    ser = ser if ser is not None else truth_series(res.trace, scen)
     if ser is None or ser.coordination_error is None:
         return None
     episodes = pass_spans(res.trace.events, victim, t_fault)
@@ -168,10 +169,11 @@ def run_case(scen: Scenario, fault: str, victim: str, t_fault: float, duration_s
     res = run_scenario(scen, duration_s=duration_s, run_id="sweep",
                        kills={victim: t_fault} if fault == "kill" else None)
     f = res.metrics["fleet"]
-    passed = passes(res, scen, victim, t_fault)
+    ser = truth_series(res.trace, scen)  # once for both
+    passed = passes(res, scen, victim, t_fault, ser)
     share = None
     if free:
-        got = progress(res, scen)
+        got = progress(res, scen, ser)
         share = {n: round(got[n] / free[n], 4) for n in got if n != victim and n in free and free[n] > 1e-6}
     return {"scenario": scen.id, "fault": fault, "robot": victim, "t_s": t_fault, "duration_s": duration_s,
             "collisions": f["collisions"], "min_separation_m": f["min_separation_m"],

@@ -50,6 +50,7 @@ from typing import Any
 import numpy as np
 
 from copath.config import ConfigError
+from copath.graph import stand_ins
 from copath.paths import Path
 from copath.scenario import Scenario
 from copath.slots import track_coordinate, wrap_near
@@ -205,6 +206,32 @@ def _pairs(scenario: Scenario, names: list[str]) -> list[tuple[str, str]]:
     return list(itertools.combinations(sorted(names), 2))
 
 
+def _live_edges(edges: list[tuple[str, str]], names: list[str],
+                unscored: dict[str, np.ndarray], T: int) -> dict[tuple[str, str], np.ndarray]:
+    """The graph's edges graded at each tick when some robots are not (lost, or on their way
+    back to their slot): the edges between graded robots, and the ungraded robots contracted
+    out of the graph, as the robots' stand-ins contract them (:func:`copath.graph.stand_ins`,
+    docs/reference/faults.md "Stand-ins for a lost neighbour"): two graded robots joined through
+    ungraded ones only are a pair. So a robot whose only neighbour is lost is still graded,
+    against the robots its neighbour listened to (docs/reference/metrics.md, coordination (M2)).
+    Returns each pair with the (T,) mask of the ticks it is graded on."""
+    graph: dict[str, list[str]] = {n: [] for n in names}
+    for a, b in edges:
+        graph[a].append(b)
+        graph[b].append(a)
+    order = [n for n in names if n in unscored]
+    state = np.array([unscored[n] for n in order])  # (robots, T)
+    out: dict[tuple[str, str], np.ndarray] = {}
+    for col in np.unique(state, axis=1).T:
+        gone = {n for n, g in zip(order, col) if g}
+        ticks = (state == col[:, None]).all(axis=0)
+        live = [(a, b) for a, b in edges if a not in gone and b not in gone]
+        joined = [tuple(sorted((a, b))) for a in names if a not in gone for b in stand_ins(graph, a, gone)]
+        for pair in dict.fromkeys(live + joined):
+            out.setdefault(pair, np.zeros(T, dtype=bool))[ticks] = True
+    return out
+
+
 def truth_series(trace, scenario: Scenario, geometry: TeamGeometry | None = None) -> TruthSeries | None:
     """Coordination and formation series from the true poses of ``trace``.
 
@@ -274,10 +301,16 @@ def truth_series(trace, scenario: Scenario, geometry: TeamGeometry | None = None
                 XI = geo.xi(S, ref=xi_ref) if leaders is not None and len(leaders) > 1 else geo.xi(S)
     pairs = _pairs(scenario, names)
     coord = None
+    unscored = {n: lost.get(n, False) | rejoining.get(n, False) for n in set(lost) | set(rejoining)}
+    graded = None
+    if unscored and scenario.metrics["coordination_pairs"] == "edges":
+        graded = _live_edges(pairs, names, unscored, T)
+        pairs = list(graded)
     if pairs:
         errs = [np.abs(wrap_near(XI[a] - XI[b], geo.period)) for a, b in pairs]
-        unscored = {n: lost.get(n, False) | rejoining.get(n, False) for n in set(lost) | set(rejoining)}
-        if unscored:
+        if graded is not None:
+            coord = _worst(np.where(graded[p], e, np.nan) for p, e in zip(pairs, errs))
+        elif unscored:
             none = np.zeros(T, dtype=bool)
             errs = [np.where(unscored.get(a, none) | unscored.get(b, none), np.nan, e)
                     for (a, b), e in zip(pairs, errs)]

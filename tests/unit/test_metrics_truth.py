@@ -377,3 +377,39 @@ def test_track_coordinate_keeps_a_robot_turning_round_a_disc_next_to_the_crossin
     s = track_coordinate(path, np.array(rec["xy"]), s0=rec["s0"])
     assert np.diff(s).min() > -0.05  # never back by more than a tick's jitter
     assert 12.5 < s[-1] < 12.9  # 4.7 m in 28 s, at most 0.2 m/s
+
+
+def test_graded_over_edges_a_robot_whose_neighbour_is_lost_is_paired_through_it():
+    """E5.4's chain 4-1-3-6-5-2 graded over its edges (``coordination_pairs = "edges"``), synthetic
+    truth: the team in its slots, r1 lost at 15 s and held still, r4 0.2 m ahead of its slot
+    from then on. r4's one neighbour is r1: graded over the edges left it would not be graded at
+    all; the lost robot is contracted out of the graph as the robots' stand-ins contract it
+    (docs/reference/metrics.md, coordination (M2)), so r4 is paired with r3 and its 0.2 m shows.
+    With r3 lost too, r4 is paired with r6, at the far end of the chain of lost robots."""
+    from types import SimpleNamespace
+
+    from copath.wire.messages import Event
+    from orchestrator.analysis.truth import team_geometry, truth_series
+
+    sc = load_scenario(CONFIGS / "e5.4-six-robots-lemniscate.toml").with_overrides(
+        metrics={"coordination_pairs": "edges"})
+    assert ("r1", "r4") in sc.edges() and not any("r4" in e and "r1" not in e for e in sc.edges())
+    geo = team_geometry(sc)
+    t = 0.1 * np.arange(600)
+    x = 0.2 * t
+    k_lost = 150
+    ahead = np.where(np.arange(len(t)) >= k_lost, 0.2, 0.0)
+
+    def series(lost):
+        slots = geo.slots(x)
+        slots["r4"] = geo.slots(x + ahead)["r4"]
+        for n in lost:
+            slots[n][k_lost:] = slots[n][k_lost - 1]  # held still where it was lost
+        robots = {n: SimpleNamespace(t=t, pose=np.column_stack([P, np.zeros(len(t))])) for n, P in slots.items()}
+        events = [Event(float(t[k_lost]), "sim", "robot_lost", {"robot": n, "policy": "continue"}) for n in lost]
+        return truth_series(SimpleNamespace(robots=robots, events=events), sc, geo).coordination_error
+
+    for lost in (["r1"], ["r1", "r3"]):
+        coord = series(lost)
+        assert np.max(coord[:k_lost]) < 1e-5, lost  # in the slots before
+        assert np.allclose(coord[k_lost + 1:], 0.2, atol=1e-4), lost  # r4's offset, against r3 or r6; r1 not graded

@@ -213,7 +213,7 @@ def _live_edges(edges: list[tuple[str, str]], names: list[str],
     out of the graph, as the robots' stand-ins contract them (:func:`copath.graph.stand_ins`,
     docs/reference/faults.md "Stand-ins for a lost neighbour"): two graded robots joined through
     ungraded ones only are a pair. So a robot whose only neighbour is lost is still graded,
-    against the robots its neighbour listened to (docs/reference/metrics.md, coordination (M2)).
+    against the robots its neighbour listened to (docs/reference/metrics.md, coordination error (M2)).
     Returns each pair with the (T,) mask of the ticks it is graded on."""
     graph: dict[str, list[str]] = {n: [] for n in names}
     for a, b in edges:

@@ -165,7 +165,7 @@ def test_e5_4_with_r1_killed_the_live_robots_go_round_it():
     the live robots go round its disc on every lap, never touch it, make at least 90 % of
     their progress without the failure, and the live robots, graded over the chain
     4-1-3-6-5-2 with r1 contracted out of it (r4 against r3, docs/reference/metrics.md,
-    coordination (M2)), are back in coordination within 20 s after the last of them has passed."""
+    coordination error (M2)), are back in coordination within 20 s after the last of them has passed."""
     scen = load_scenario(config("e5.4-")).with_overrides(run={"on_robot_failure": "continue"},
                                                          metrics={"coordination_pairs": "edges"},
                                                          safety={"detours": True})

@@ -384,7 +384,7 @@ def test_graded_over_edges_a_robot_whose_neighbour_is_lost_is_paired_through_it(
     truth: the team in its slots, r1 lost at 15 s and held still, r4 0.2 m ahead of its slot
     from then on. r4's one neighbour is r1: graded over the edges left it would not be graded at
     all; the lost robot is contracted out of the graph as the robots' stand-ins contract it
-    (docs/reference/metrics.md, coordination (M2)), so r4 is paired with r3 and its 0.2 m shows.
+    (docs/reference/metrics.md, coordination error (M2)), so r4 is paired with r3 and its 0.2 m shows.
     With r3 lost too, r4 is paired with r6, at the far end of the chain of lost robots."""
     from types import SimpleNamespace
 

@@ -261,8 +261,9 @@ class Path:
         in the same order on Python floats, so the result is bit-identical to the array
         path, without its numpy overhead on one-element arrays. The curve and the
         transcendental functions are still numpy's (the curve's nine stencil points in
-        one call; ``arctan2`` and ``hypot`` as ufuncs), since libm's and numpy's may
-        differ in the last bit (docs/journal/performance.md, profile of E5.4 (P12))."""
+        one call; ``arctan2``, ``hypot`` and ``power`` as ufuncs), since libm's and numpy's
+        differ in the last bit where numpy has SIMD routines of its own (AVX-512;
+        docs/journal/performance.md, profile of E5.4 (P12))."""
         L = self.length
         if self.closed:
             laps = math.floor(s / L)
@@ -286,8 +287,8 @@ class Path:
         d2x = (-R[7][0] + 16 * R[5][0] - 30 * R[0][0] + 16 * R[6][0] - R[8][0]) / (12 * h2 * h2)
         d2y = (-R[7][1] + 16 * R[5][1] - 30 * R[0][1] + 16 * R[6][1] - R[8][1]) / (12 * h2 * h2)
         sp = float(np.hypot(d1x, d1y))  # libm's hypot: math.hypot rounds differently (safety filter's cost (P13))
-        k = (d1x * d2y - d1y * d2x) / sp**3  # libm's pow, as np.power
-        raw = math.atan2(d1y, d1x)
+        k = (d1x * d2y - d1y * d2x) / float(np.power(sp, 3))  # numpy's pow, as the array path (not libm's on AVX-512)
+        raw = float(np.arctan2(d1y, d1x))  # numpy's: on AVX-512 machines it is not libm's (math.atan2)
         ref = self._interp_theta(s_in, i)
         th = raw + 2 * math.pi * round((ref - raw) / (2 * math.pi))
         x, y = R[0]

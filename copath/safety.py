@@ -647,7 +647,7 @@ class SafetyFilter:
     """
 
     def __init__(self, config: SafetyConfig, model: OmniModel | UnicycleModel, dt: float,
-                 capacity: int = 0, lag_periods: float = 1.0) -> None:
+                 capacity: int = 0, lag_periods: float = 1.0, in_column: bool = False) -> None:
         require(config.gamma is None or config.gamma * dt <= 1.0 + 1e-12, "safety.gamma", config.gamma,
                 f"must be <= 1/run.dt = {1.0 / dt:g} 1/s so a barrier cannot be overshot in one period")
         self.config = config
@@ -671,6 +671,11 @@ class SafetyFilter:
         """Deadlock rule's turn of the reference [rad] (0: off)."""
         self.held_turn = float(config.held_turn_m)
         """Reach of the deadlock rule's left turn beside a held robot [m] (:meth:`turn_side`)."""
+        self.in_column = bool(in_column)
+        """The robot shares its path with a teammate (a column): while a held robot is among its
+        neighbours it takes no deadlock turn (docs/reference/safety.md, "Deadlock rule": the
+        column's robots pass a held one by their detours, one behind the other; the turn spun
+        the robot just behind it on the spot while the next went past)."""
         self.held_side: int | None = None
         """The side :meth:`turn_side` took at its last decision beside a held robot (None: none
         since a call without one in reach); kept within ``HELD_DEADBAND_RAD`` of straight ahead."""
@@ -994,7 +999,8 @@ class SafetyFilter:
         ratio = float(np.hypot(*self.steered_velocity(u, th))) / speed_nom if speed_nom > 1e-9 else 1.0
         blocked = bool(np.any((A @ u_sat < rhs - 1e-12) & (soft != TUBE)))  # a barrier, not the cap or the tube
         if ok and blocked and ratio < SLOWED:
-            ref = self.biased_reference(u_sat, th, self.turn * self.turn_side(pose, u_sat, neighbours))
+            turn = 0.0 if self.in_column and any(nb.held for nb in neighbours) else self.turn
+            ref = self.biased_reference(u_sat, th, turn * self.turn_side(pose, u_sat, neighbours)) if turn else None
             if ref is not None:
                 ub, sb, okb = self._solve(A, rhs, ref, soft)
                 if okb:
@@ -1184,6 +1190,8 @@ class GuardConfig:
     lag_periods: float = 1.0
     """How late a sent velocity may take effect after its stamp, in control periods
     (``safety.command_lag_periods`` resolved for the run's clock)."""
+    in_column: bool = False
+    """This robot shares its path with another robot (:attr:`SafetyFilter.in_column`)."""
 
     def __post_init__(self) -> None:
         require(self.name in self.models, "name", self.name, f"allowed: one of the robots {sorted(self.models)}")
@@ -1220,7 +1228,8 @@ class SafetyGuard:
         self._ack = self._commit and cfg.acknowledge_plans
         if self._commit:  # one tube row per plan still kept
             rows += int(math.ceil(cfg.commit_horizon_s / dt)) + 1
-        self.filter = SafetyFilter(cfg, own, dt, capacity=rows, lag_periods=config.lag_periods)
+        self.filter = SafetyFilter(cfg, own, dt, capacity=rows, lag_periods=config.lag_periods,
+                                   in_column=config.in_column)
         cap = cfg.speed_max_mps
         self._bounds = {n: (m.radius, max_speed(m) if cap is None else min(cap, max_speed(m)),
                             0.0 if isinstance(m, OmniModel) else float(cfg.lookahead_m))

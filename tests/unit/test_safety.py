@@ -564,6 +564,28 @@ def test_deadlock_rule_keeps_its_side_when_a_held_robot_is_dead_ahead():
     assert f.turn_side(pose, nominal, [ahead_left, live]) == 1 and f.held_side is None  # a live robot: the convention
 
 
+def test_a_robot_in_a_column_takes_no_deadlock_turn_beside_a_held_robot():
+    """A robot that shares its path with a teammate (``in_column``) takes no deadlock turn while a
+    held robot is among its neighbours: the filter only slows it, and its detour takes it round
+    (in E5.4 the turn spun the robot just behind a held one on the spot while the next one went
+    past, docs/reference/safety.md, "Deadlock rule"). Beside a live robot the rule still turns,
+    and a robot on a path of its own still turns beside a held one."""
+    model = UnicycleModel(v_max=0.5, omega_max=1.0)
+    pose, nominal = [0.0, 0.0, 0.0], [0.3, 0.0]
+    held = Neighbour((0.3, 0.05), 0.0, 0.1, 0.5, spread=0.0, held=True)  # ahead, a little to the left
+    live = Neighbour((0.3, 0.0), 0.1, 0.06, 0.5, lookahead=0.05)
+    column = SafetyFilter(CFG, model, 0.1, in_column=True)
+    own = SafetyFilter(CFG, model, 0.1)
+    no_rule = SafetyFilter(SafetyConfig(enabled=True, deadlock_turn_rad=0.0), model, 0.1)
+    res = column.filter(pose, nominal, [held])
+    assert res.active and not res.biased  # the filter's own solution, as without the rule
+    assert np.array_equal(res.command, no_rule.filter(pose, nominal, [held]).command)
+    turned = own.filter(pose, nominal, [held])
+    assert turned.biased and not np.allclose(turned.command, res.command)
+    assert column.filter(pose, nominal, [live]).biased  # a live robot: the convention
+    assert column.filter(pose, nominal, [live]).command[1] < 0
+
+
 def test_deadlock_rule_turns_left_beside_a_held_robot_on_the_right():
     """A robot lost by its token, held still, does not turn: with its disc ahead on the right,
     the rule's right turn would steer into it, so it turns left; a live robot ahead keeps the

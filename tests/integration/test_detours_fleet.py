@@ -1,6 +1,7 @@
 """Detours over Zenoh (docs/reference/detours.md): the box-on-lane column as robot processes in lockstep
 goes round the box as the in-process run does, and its log carries the detour events; E5.4's column
-goes round its silent front robot, held on the lane, as in one process; in realtime the box-on-lane
+goes round its silent front robot, held on the lane, as in one process (with the filter's deadlock
+turn on too); in realtime the box-on-lane
 column goes round the box on its own timers."""
 
 from __future__ import annotations
@@ -59,6 +60,25 @@ def test_a_column_goes_round_its_silent_front_robot_held_on_the_lane_over_zenoh_
     stand = sorted((src, d["robots"]) for src, what, d in events if what == "stand_ins")
     assert stand == [("r3", ["r4"]), ("r4", ["r3"])], stand
     assert m["robots"]["r4"]["path_progress_m"] == pytest.approx(ref["robots"]["r4"]["path_progress_m"], abs=1e-6)
+
+
+def test_a_column_with_the_deadlock_turn_on_passes_its_held_robot_over_zenoh_as_in_one_process(tmp_path):
+    """The same column with the safety filter's deadlock turn on (E5.4's own 1.2 rad, where the
+    variant turns it off): beside the held r1 no robot of the column takes it, each goes round on
+    its detour (docs/reference/safety.md, "Deadlock rule"), touching nothing; in lockstep the
+    processes run the in-process run, key by key."""
+    name = "e5.4-six-robots-lemniscate-r1-lost"
+    rc = copath(["run", str(config(name)), "--out", str(tmp_path), "-q", "--duration", "60", "--no-plots",
+                 "--set", "safety.deadlock_turn_rad=1.2"])
+    m = json.loads((tmp_path / "metrics.json").read_text())
+    assert rc == 0 and m["ok"], m.get("failure")
+    assert m["fleet"]["collisions"] == 0
+    scen = load_scenario(config(name)).with_overrides(safety={"deadlock_turn_rad": 1.2})
+    ref = run_scenario(scen, duration_s=60.0).metrics
+    for n, r in m["robots"].items():
+        for key in ("path_progress_m", "stalled_s", "detours"):
+            assert r[key] == pytest.approx(ref["robots"][n][key], abs=1e-6), (n, key)
+        assert r["detours"] == (0 if n == "r1" else 1), n
 
 
 def test_box_on_lane_column_in_realtime_over_zenoh(tmp_path):

@@ -56,13 +56,12 @@ class LivenessStage:
         self.silent_after_s = float(scenario.run.lease_s)
         """Silence threshold [s]: the run's transport lease, as for a frozen process."""
         self._team = frozenset(scenario.robot_names) - {name}
-        spec = scenario.robot(name)
-        self._watched = frozenset(spec.neighbours) if scenario.network.range_m == 0 else None
+        """Every other robot of the scenario. Having lost every one of them it has heard (in its
+        inbox or overheard) is being cut off; one it never heard cannot be lost."""
+        self._watched = frozenset(scenario.robot(name).neighbours) if scenario.network.range_m == 0 else None
         """The robots whose silence it watches: its neighbours on a fixed graph (not a robot that
         stands in for a lost one, docs/reference/faults.md, "Stand-ins for a lost neighbour": it
         would be found silent once it stopped standing in), every robot on a range-limited one."""
-        """Every other robot of the scenario. Having lost every one of them it has heard (in its
-        inbox or overheard) is being cut off; one it never heard cannot be lost."""
         self._heard: dict[str, float] = {}
         """When a robot-to-robot message of each sender was last delivered here (after faults).
         Arrival, not the message's stamp: a neighbour whose every message is 1 s old (a slow

@@ -10,6 +10,7 @@ import json
 
 import pytest
 
+from copath.safety import SafetyFilter
 from copath.scenario import load_scenario
 from orchestrator.cli import main as copath
 from orchestrator.log.mcap import read_log
@@ -62,11 +63,12 @@ def test_a_column_goes_round_its_silent_front_robot_held_on_the_lane_over_zenoh_
     assert m["robots"]["r4"]["path_progress_m"] == pytest.approx(ref["robots"]["r4"]["path_progress_m"], abs=1e-6)
 
 
-def test_a_column_with_the_deadlock_turn_on_passes_its_held_robot_over_zenoh_as_in_one_process(tmp_path):
+def test_a_column_with_the_deadlock_turn_on_passes_its_held_robot_over_zenoh_as_in_one_process(tmp_path, monkeypatch):
     """The same column with the safety filter's deadlock turn on (E5.4's own 1.2 rad, where the
     variant turns it off): beside the held r1 no robot of the column takes it, each goes round on
     its detour (docs/reference/safety.md, "Deadlock rule"), touching nothing; in lockstep the
-    processes run the in-process run, key by key."""
+    processes run the in-process run, key by key, and not the run in which the column's robots
+    keep the turn (r2 2 cm further then: the processes apply the rule)."""
     name = "e5.4-six-robots-lemniscate-r1-lost"
     rc = copath(["run", str(config(name)), "--out", str(tmp_path), "-q", "--duration", "60", "--no-plots",
                  "--set", "safety.deadlock_turn_rad=1.2"])
@@ -79,6 +81,11 @@ def test_a_column_with_the_deadlock_turn_on_passes_its_held_robot_over_zenoh_as_
         for key in ("path_progress_m", "stalled_s", "detours"):
             assert r[key] == pytest.approx(ref["robots"][n][key], abs=1e-6), (n, key)
         assert r["detours"] == (0 if n == "r1" else 1), n
+    keep = SafetyFilter.__init__
+    monkeypatch.setattr(SafetyFilter, "__init__",
+                        lambda self, *a, **kw: keep(self, *a, **{**kw, "in_column": False}))
+    turned = run_scenario(scen, duration_s=60.0).metrics
+    assert abs(m["robots"]["r2"]["path_progress_m"] - turned["robots"]["r2"]["path_progress_m"]) > 1e-3
 
 
 def test_box_on_lane_column_in_realtime_over_zenoh(tmp_path):

@@ -91,7 +91,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Mapping, NamedTuple, Sequence
+from typing import Literal, Mapping, NamedTuple, Sequence
 
 import numpy as np
 
@@ -185,12 +185,16 @@ class SafetyConfig:
     commit_horizon_s: float = 2.5
     """Committed plans: how long each published plan is kept [s] (chosen: above the largest
     age of information at 1 s of delay and 50 % loss in the measured runs)."""
-    acknowledge_plans: bool = False
+    acknowledge_plans: bool | Literal["while_held"] = False
     """Committed plans: every envelope acknowledges the plans its filter holds, and a robot keeps
     no plan older than every robot that may hold one has acknowledged (docs/reference/safety.md,
     "Acknowledged plans"; lockstep runs then also wait for every overheard message). Off by
     default (chosen: on, E5.4 with r4 killed at 30 s made 86 % of its progress without the kill
-    instead of 91 %; docs/journal/faults.md, "Acknowledged plans")."""
+    instead of 91 %; docs/journal/faults.md, "Acknowledged plans"). ``"while_held"``: the
+    envelopes acknowledge as with ``true``, and a robot leaves out unacknowledged plans only
+    while it holds a robot still (lost, or gone quiet): the others keep every plan of the
+    horizon, as without acknowledgements, until a robot is lost (docs/reference/safety.md,
+    "Acknowledged plans while a robot is held")."""
     command_lag_periods: float | None = None
     """How many control periods one command may drive, and how late after its stamp a sent
     velocity may take effect: the filter's gain is gamma / L, its braking rows hold a speed
@@ -220,6 +224,8 @@ class SafetyConfig:
         require(self.accel_max_mps2 is None or self.accel_max_mps2 > 0, "safety.accel_max_mps2",
                 self.accel_max_mps2, "must be > 0 (or left out)")
         require(self.max_age_s > 0, "safety.max_age_s", self.max_age_s, "must be > 0")
+        require(isinstance(self.acknowledge_plans, bool) or self.acknowledge_plans == "while_held", "safety.acknowledge_plans",
+                self.acknowledge_plans, 'must be true, false or "while_held"')
         require(self.slack_weight > 0, "safety.slack_weight", self.slack_weight, "must be > 0")
         require(math.isfinite(self.lookahead_m) and self.lookahead_m >= 0, "safety.lookahead_m",
                 self.lookahead_m, "must be >= 0 (0: the filter changes only v of a unicycle)")
@@ -1225,7 +1231,9 @@ class SafetyGuard:
         rows = per_robot * (len(models) - 1) + (sensor_count if cfg.use_ranges else 0) * (1 if omni else 2)
         self._config = cfg
         self._commit = cfg.commit_accel_mps2 is not None
-        self._ack = self._commit and cfg.acknowledge_plans
+        self._ack = self._commit and bool(cfg.acknowledge_plans)
+        self._ack_held_only = cfg.acknowledge_plans == "while_held"
+        """Unacknowledged plans are left out only while a robot is held still (``"while_held"``)."""
         if self._commit:  # one tube row per plan still kept
             rows += int(math.ceil(cfg.commit_horizon_s / dt)) + 1
         self.filter = SafetyFilter(cfg, own, dt, capacity=rows, lag_periods=config.lag_periods,
@@ -1277,6 +1285,9 @@ class SafetyGuard:
         premise broken; docs/reference/safety.md, "Committed plans")."""
         self.commit_excess_max = 0.0
         """Largest distance outside a committed tube [m]."""
+        self.ack_steps = 0
+        """Control instants at which acknowledgements let the robot leave out plans of the horizon
+        that no robot may hold any more (docs/reference/safety.md, "Acknowledged plans")."""
         self._lost_at: dict[str, float] = {}
         """Robots lost (held still by the simulator) and when this robot first knew it [s]."""
         self._back_at: dict[str, float] = {}
@@ -1353,6 +1364,8 @@ class SafetyGuard:
         if not self._ack:
             return -math.inf
         acked, lost, back = self._acked, self._lost_at, self._back_at
+        if self._ack_held_only and not lost:
+            return -math.inf  # nobody held still: every plan of the horizon is kept
         floor = math.inf
         for name in self._bounds:
             if name == self.name or (name in lost and name not in back and name not in self._quiet):
@@ -1727,6 +1740,8 @@ class SafetyGuard:
         tubes = _NO_TUBES
         if self._commit:
             plans = self._kept(plan_t)
+            if self._ack and len(plans) < len(self._plans):
+                self.ack_steps += 1
             if plans:
                 tubes = _PlanTubes(plans, plan_t, self._config, self.filter, float(pose[0]), float(pose[1]))
                 if not tubes.inside:  # near or past a tube's edge: the exact test, on the arrays
@@ -1791,4 +1806,5 @@ class SafetyGuard:
                 "safety_qp_failures": self.qp_failures, "safety_slack_steps": self.slack_steps,
                 "safety_bias_steps": self.bias_steps,
                 **({"safety_commit_breaks": self.commit_breaks,
-                    "safety_commit_excess_max": round(self.commit_excess_max, 6)} if self._commit else {})}
+                    "safety_commit_excess_max": round(self.commit_excess_max, 6)} if self._commit else {}),
+                **({"safety_ack_steps": self.ack_steps} if self._ack else {})}

@@ -88,6 +88,8 @@ def type_name(tp: Any) -> str:
         return "string"
     if tp is type(None):
         return "none"
+    if origin is typing.Literal:
+        return " or ".join(f'"{a}"' if isinstance(a, str) else repr(a) for a in args)
     if origin in (typing.Union, types.UnionType):
         parts = [type_name(a) for a in args if a is not type(None)]
         return " or ".join(parts) + (" (optional)" if type(None) in args else "")

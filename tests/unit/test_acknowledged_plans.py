@@ -141,3 +141,37 @@ def test_the_runtime_acknowledges_what_its_filter_holds_and_keeps_less_when_ackn
     # r1's filter has taken in the envelopes of the tick before (the last ones wait for its next
     # step), which acknowledged its plan of two ticks ago: of its six plans it keeps three
     assert [p[0] for p in guard._kept(5 * dt)] == pytest.approx([3 * dt, 4 * dt, 5 * dt])
+
+
+def test_while_held_keeps_every_plan_until_a_robot_is_held_still_and_again_once_it_is_heard():
+    """``acknowledge_plans = "while_held"`` (docs/reference/safety.md, "Acknowledged plans while a
+    robot is held"): the same acknowledgements, used only while the filter holds a robot still."""
+    cfg = SafetyConfig(enabled=True, commit_accel_mps2=0.2, commit_speed_mps=0.05, acknowledge_plans="while_held")
+    g, always = _guard(cfg=cfg), _guard()
+    for guard in (g, always):
+        _publish(guard, 20)
+        guard.hear("b", (1.0, 1.0), 1.9, (0.0, 0.0, 0.0), acks={"a": 1.9})
+        guard.hear("c", (1.0, -1.0), 1.9, (0.0, 0.0, 0.0), acks={"a": 1.7})
+    assert g.acks() == always.acks() == {"b": 1.9, "c": 1.9}  # acknowledged on the wire all the same
+    assert len(_stamps(g, 1.95)) == 20 and _stamps(always, 1.95) == [1.7, 1.8, 1.9]  # nobody held: all kept
+    for guard in (g, always):
+        guard.apply(np.array([1.9, 0.0, 0.0]), [0.0, 0.0, 0.0], 1.95, lost=("c",))  # c's process died
+    assert _stamps(g, 1.95) == _stamps(always, 1.95) == [1.9]  # c held still: only what b may hold
+    for guard in (g, always):
+        guard.apply(np.array([1.9, 0.0, 0.0]), [0.0, 0.0, 0.0], 2.0, lost=())  # c's token is back ...
+        guard.published(2.0, (2.0, 0.0), (1.0, 0.0, 0.0))
+        guard.hear("b", (1.0, 1.0), 2.0, (0.0, 0.0, 0.0), acks={"a": 2.0})
+    assert _stamps(g, 2.0) == [round(0.1 * k, 6) for k in range(21)]  # ... unacknowledged: the horizon
+    for guard in (g, always):
+        guard.hear("c", (1.0, -1.0), 2.1, (0.0, 0.0, 0.0), acks={"a": 2.0})  # ... and heard: no longer held
+        guard.apply(np.array([2.0, 0.0, 0.0]), [0.0, 0.0, 0.0], 2.1, lost=())
+    assert _stamps(always, 2.05) == [2.0]
+    assert len(_stamps(g, 2.05)) == 21  # nobody held any more: every plan of the horizon again
+
+
+@pytest.mark.parametrize("value", ["sometimes", 1, "true"])
+def test_acknowledge_plans_refuses_anything_but_true_false_or_while_held(value):
+    from copath.config import ConfigError  # noqa: PLC0415
+
+    with pytest.raises(ConfigError, match=r"safety\.acknowledge_plans = .* is not allowed; must be true, false or \"while_held\""):
+        SafetyConfig(enabled=True, commit_accel_mps2=0.2, acknowledge_plans=value)

@@ -224,8 +224,8 @@ class SafetyConfig:
         require(self.accel_max_mps2 is None or self.accel_max_mps2 > 0, "safety.accel_max_mps2",
                 self.accel_max_mps2, "must be > 0 (or left out)")
         require(self.max_age_s > 0, "safety.max_age_s", self.max_age_s, "must be > 0")
-        require(isinstance(self.acknowledge_plans, bool) or self.acknowledge_plans == "while_held", "safety.acknowledge_plans",
-                self.acknowledge_plans, 'must be true, false or "while_held"')
+        require(isinstance(self.acknowledge_plans, bool) or self.acknowledge_plans == "while_held",
+                "safety.acknowledge_plans", self.acknowledge_plans, 'must be true, false or "while_held"')
         require(self.slack_weight > 0, "safety.slack_weight", self.slack_weight, "must be > 0")
         require(math.isfinite(self.lookahead_m) and self.lookahead_m >= 0, "safety.lookahead_m",
                 self.lookahead_m, "must be >= 0 (0: the filter changes only v of a unicycle)")
@@ -1360,7 +1360,8 @@ class SafetyGuard:
         process holds nothing; one back from a restart counts again, unacknowledged until it
         acknowledges). A robot that has acknowledged nothing (never heard, out of range, or back
         from a loss) may hold any plan younger than the horizon: -inf, the horizon alone
-        (docs/reference/safety.md, "Acknowledged plans")."""
+        (docs/reference/safety.md, "Acknowledged plans"). With ``"while_held"``, -inf too while
+        this robot holds no robot still ("Acknowledged plans while a robot is held")."""
         if not self._ack:
             return -math.inf
         acked, lost, back = self._acked, self._lost_at, self._back_at

@@ -3,6 +3,7 @@ pid (never by name), with every process below it. Linux ``/proc`` only."""
 
 from __future__ import annotations
 
+import json
 import os
 import pathlib
 import signal
@@ -112,6 +113,21 @@ def victim(p: subprocess.Popen, out: pathlib.Path, name: str = "r3", under_way_b
     pids = [pid for pid in child_pids(p.pid) if "agent" in cmdline(pid) and name in cmdline(pid)]
     assert len(pids) == 1
     return pids[0]
+
+
+def killed_mid_run(p: subprocess.Popen, out: pathlib.Path, name: str, under_way_bytes: int,
+                   timeout: float = 300.0) -> tuple[dict, list, list[float]]:
+    """Kill robot ``name``'s process (SIGKILL, :func:`victim`) once the run ``p`` writing to ``out``
+    is under way, wait for the run to end (exit 0 asserted) and return its ``metrics.json``, its
+    log's records and the times of the simulator's ``robot_lost`` events of ``name``."""
+    from orchestrator.log.mcap import read_log  # noqa: PLC0415
+
+    os.kill(victim(p, out, name, under_way_bytes), signal.SIGKILL)
+    assert p.wait(timeout=timeout) == 0, p.stderr.read().decode()[-3000:]
+    records = read_log(out / "run.mcap").records
+    lost = [float(r.t) for _, _, r in records
+            if getattr(r, "TYPE", "") == "event" and r.what == "robot_lost" and r.detail.get("robot") == name]
+    return json.loads((out / "metrics.json").read_text()), records, lost
 
 
 def unfreeze(pid: int, sig: int) -> None:

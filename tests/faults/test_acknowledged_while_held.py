@@ -5,15 +5,10 @@ only then; they go round it and touch nothing."""
 
 from __future__ import annotations
 
-import json
-import os
-import signal
-
 import pytest
 
 from copath.wire.messages import Stats
-from orchestrator.log.mcap import read_log
-from orchestrator.testkit.processes import victim
+from orchestrator.testkit.processes import killed_mid_run
 from tests.conftest import config
 
 pytestmark = [pytest.mark.faults, pytest.mark.fleet, pytest.mark.timeout(400)]
@@ -26,17 +21,12 @@ def test_after_a_kill_the_live_robots_leave_out_unacknowledged_plans_over_zenoh(
                      "--run-id", "ackh", "--duration", f"{duration:g}", "-q", "--no-plots",
                      "--set", 'run.on_robot_failure="continue"', "--set", f'run.clock="{clock}"',
                      "--set", "run.settle_s=10"])
-    pid = victim(p, tmp_path, "r4", under_way_bytes=300_000)  # about 11 s of the run, in its own time
-    os.kill(pid, signal.SIGKILL)
-    assert p.wait(timeout=300) == 0, p.stderr.read().decode()[-3000:]
-    m = json.loads((tmp_path / "metrics.json").read_text())
-    log = read_log(tmp_path / "run.mcap")
-    lost = [float(r.t) for _, _, r in log.records
-            if getattr(r, "TYPE", "") == "event" and r.what == "robot_lost" and r.detail.get("robot") == "r4"]
+    # about 11 s of the run, in its own time
+    m, records, lost = killed_mid_run(p, tmp_path, "r4", under_way_bytes=300_000)
     assert len(lost) == 1 and 3.0 < lost[0] < duration - 5.0, lost  # mid-run
     assert m["ok"] and m["fleet"]["collisions"] == 0
     assert m["fleet"]["messages_published"] == m["fleet"]["messages_recorded"]
-    steps = {r.proc: r.counters["safety_ack_steps"] for _, _, r in log.records
+    steps = {r.proc: r.counters["safety_ack_steps"] for _, _, r in records
              if isinstance(r, Stats) and r.proc not in ("sim", "r4")}
     assert set(steps) == {"r1", "r2", "r3", "r5", "r6"}
     after = (duration - lost[0]) / 0.1 + 3  # steps after the loss (a realtime step may come early)

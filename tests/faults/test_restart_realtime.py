@@ -11,7 +11,6 @@ synchronised and first stepped."""
 from __future__ import annotations
 
 import dataclasses
-import json
 import os
 import signal
 import threading
@@ -20,8 +19,7 @@ import time
 import pytest
 
 from orchestrator.studies.bench.chaos import robot_pid
-from orchestrator.log.mcap import read_log
-from orchestrator.testkit.processes import victim
+from orchestrator.testkit.processes import killed_mid_run
 from tests.conftest import config
 
 pytestmark = [pytest.mark.faults, pytest.mark.timeout(400)]
@@ -56,30 +54,24 @@ def test_a_killed_robot_restarts_and_commands_again_over_zenoh(tmp_path, procs, 
     # child, not the highest pid named r2 of run "rsrt". Once, in CI, a kill 3 s after the
     # start did nothing to the run (restarts 0, ok true): a lockstep run's pace is the
     # machine's, and pids wrap at 32768. The robot_lost below proves the kill landed mid-run.
-    pid = victim(p, tmp_path, "r2", under_way_bytes=150_000)
-    os.kill(pid, signal.SIGKILL)
-    assert p.wait(timeout=300) == 0, p.stderr.read().decode()[-3000:]
-    m = json.loads((tmp_path / "metrics.json").read_text())
-    log = read_log(tmp_path / "run.mcap")
-    lost = [float(r.t) for _, _, r in log.records
-            if getattr(r, "TYPE", "") == "event" and r.what == "robot_lost" and r.detail.get("robot") == "r2"]
+    m, records, lost = killed_mid_run(p, tmp_path, "r2", under_way_bytes=150_000)
     assert len(lost) == 1 and 5.0 < lost[0] < 20.0, lost  # mid-run
     r2 = m["robots"]["r2"]
     assert m["ok"] and r2["restarts"] == 1 and r2["outage_open"] is False
-    before, after = _command_gap(log.records, "r2")
+    before, after = _command_gap(records, "r2")
     assert after is not None, "r2 never commanded again"
     assert r2["outage_s"] == pytest.approx(after - before, abs=1e-6)
     assert 0 < r2["outage_s"] < 10.0
-    back = [r for _, _, r in log.records if getattr(r, "TYPE", "") == "event" and r.what == "rejoined_stepping"]
+    back = [r for _, _, r in records if getattr(r, "TYPE", "") == "event" and r.what == "rejoined_stepping"]
     assert [r.source for r in back] == ["r2"]
     assert 0 < back[0].detail["since_process_start_s"] < 20.0  # the orchestrator's rejoin bound
     # the new process promises nothing until it has seen its base move, then the base's own
     # velocity (docs/journal/faults.md, "A restarted robot's first promise")
-    envs = sorted((r for _, _, r in log.records if getattr(r, "TYPE", "") == "peer" and r.sender == "r2"
+    envs = sorted((r for _, _, r in records if getattr(r, "TYPE", "") == "peer" and r.sender == "r2"
                    and r.stamp >= back[0].t - 1e-6), key=lambda r: r.stamp)
     assert envs and envs[0].vel is None, envs[:1]
     first = next(r for r in envs if r.vel is not None)
-    truth = sorted((r for _, _, r in log.records if getattr(r, "TYPE", "") == "truth"), key=lambda r: r.t)
+    truth = sorted((r for _, _, r in records if getattr(r, "TYPE", "") == "truth"), key=lambda r: r.t)
     i = next(j for j, r in enumerate(truth) if r.t >= first.stamp)
     k = truth[i].names.index("r2")
     (x0, y0, _), (x1, y1, _) = truth[i - 1].poses[k], truth[i].poses[k]
@@ -87,7 +79,7 @@ def test_a_killed_robot_restarts_and_commands_again_over_zenoh(tmp_path, procs, 
     assert abs((first.vel[0] ** 2 + first.vel[1] ** 2) ** 0.5 - speed) < 0.05, (first.vel, speed)
     # the robots waited for the restart before going round r2's held disc (docs/reference/detours.md,
     # "A robot the fleet restarts"): no detour round a held robot began within 2 s of the loss
-    early = [(float(r.t), r.source) for _, _, r in log.records
+    early = [(float(r.t), r.source) for _, _, r in records
              if getattr(r, "TYPE", "") == "event" and r.what == "detour_start"
              and r.detail.get("reason") == "held" and r.t < lost[0] + 1.9]
     assert early == [], early
@@ -98,7 +90,7 @@ def test_a_killed_robot_restarts_and_commands_again_over_zenoh(tmp_path, procs, 
     # (tests/faults/test_stand_ins.py kills one for good in realtime). A restarted robot whose
     # token is back but that has not spoken for a lease is lost again by its silence, so they
     # may stand in more than once, and always end
-    stand = [(r.source, float(r.t), r.detail["robots"]) for _, _, r in log.records
+    stand = [(r.source, float(r.t), r.detail["robots"]) for _, _, r in records
              if getattr(r, "TYPE", "") == "event" and r.what == "stand_ins"]
     for n, other in (("r1", "r3"), ("r3", "r1")):
         mine = [(t, robots) for src, t, robots in stand if src == n]
@@ -106,7 +98,7 @@ def test_a_killed_robot_restarts_and_commands_again_over_zenoh(tmp_path, procs, 
             assert mine and [robots for _, robots in mine] == [[other], []] * (len(mine) // 2), stand
             assert lost[0] - 0.2 <= mine[0][0] and mine[-1][0] <= back[0].t + 3.0, (mine, lost, back[0].t)
     if clock == "lockstep":
-        heard = {r.proc: r.counters.get("stand_in_messages", 0) for _, _, r in log.records
+        heard = {r.proc: r.counters.get("stand_in_messages", 0) for _, _, r in records
                  if getattr(r, "TYPE", "") == "stats" and r.proc in ("r1", "r3")}
         assert heard["r1"] >= 1 and heard["r3"] >= 1, (heard, stand)
     # the accounts survive the kill: nothing lost, the killed process counted to its last record

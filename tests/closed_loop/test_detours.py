@@ -12,10 +12,10 @@ import numpy as np
 import pytest
 
 from copath.scenario import ObstacleSpec, load_scenario
-from copath.wire.messages import Stats
 from copath.slots import track_coordinate
 from copath.grading import grade
 from orchestrator.run.inprocess import run_scenario
+from orchestrator.testkit.records import closing_counters
 from orchestrator.analysis.truth import cross_track_series, truth_series
 from orchestrator.run.validate import validate_table
 from tests.faults.user_controller import scenario_text
@@ -295,9 +295,9 @@ def test_e5_1_the_team_goes_round_its_killed_leader():
 
 
 def _ack_steps(res) -> dict[str, int]:
-    """Each robot's closing count of steps at which it left out unacknowledged plans (its
-    ``stats`` record in the log; docs/reference/safety.md, "Acknowledged plans")."""
-    return {r.proc: r.counters["safety_ack_steps"] for _, _, r in res.records if isinstance(r, Stats) and r.proc != "sim"}
+    """Each robot's closing count of steps at which it left out unacknowledged plans
+    (docs/reference/safety.md, "Acknowledged plans")."""
+    return closing_counters(res.records, "safety_ack_steps")
 
 
 def test_e5_4_leaves_out_unacknowledged_plans_only_once_a_robot_is_held():

@@ -102,10 +102,14 @@ def detour_planner(scenario: Scenario, name: str) -> DetourPlanner | None:
     # the filter's deadlock rule (a right turn while a barrier slows the robot) already unwinds
     # head-on jams where it is on (unicycles by default): the stage's stall rule is for the rest
     ruled = scenario.safety.enabled and (UNICYCLE_TURN_RAD if turn is None and unicycle else (turn or 0.0)) > 0
+    # a unicycle in a column turns on the spot before a steep ramp round a held robot (its filter
+    # takes no deadlock turn beside one there: docs/reference/detours.md, "Turn first")
+    column = bool(spec.path) and any(r.path == spec.path for r in scenario.robots if r.name != name)
     return DetourPlanner(scenario.paths[path], spec.model.radius, unicycle,
                          scenario.run.dt, [(o.vertices, o.velocity) for o in scenario.obstacles if o.known],
                          scenario.sensors.max_range_m if scenario.sensors.enabled else 0.0,
-                         DetourConfig(margin_m=scenario.safety.margin_m, stall_detours=not ruled))
+                         DetourConfig(margin_m=scenario.safety.margin_m, stall_detours=not ruled,
+                                      turn_first=unicycle and column))
 
 
 @dataclass
@@ -419,7 +423,7 @@ class RobotRuntime:
                                   sensor_max_range=self._max_range, lost=alive.lost, joined=self.joined)
         res = self.control.step(observation, released.messages, obs.k, now)  # control
         telemetry = res.telemetry
-        cmd = self.hold.apply(alive.cut_off, self.detour.command(res.command), telemetry)  # hold
+        cmd = self.hold.apply(alive.cut_off, self.detour.command(res.command, self.envelopes.applied), telemetry)  # hold
         if detour_offset:
             telemetry["detour_offset"] = detour_offset
         # the pose is the observation's, true at obs.t: a realtime robot steps on its own timer,
@@ -427,7 +431,8 @@ class RobotRuntime:
         # "Late commands"); in lockstep the two are the same; the estimator's pose is predicted to now
         pose_t = now if estimate is not None else min(float(obs.t), now)
         if self.safety is not None:  # safety
-            cmd = self.safety.apply(now, pose, cmd, ranges, self._angles, held, telemetry, self.liveness, pose_t)
+            cmd = self.safety.apply(now, pose, cmd, ranges, self._angles, held, telemetry, self.liveness, pose_t,
+                                    self.detour.turning)
         self.counters.steps += 1
         peers, vel = self.envelopes.send(now, pose, cmd, res.messages, self.estimator.position_cov,  # envelopes
                                          pose_t if pose_t < now else None,

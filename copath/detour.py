@@ -57,7 +57,7 @@ import numpy as np
 from .paths import Path
 
 __all__ = ["DetourConfig", "Disc", "DetourPlan", "DetourPlanner", "DetourStep", "bump", "polygon_disc", "ray_discs",
-           "plan_shift", "stretch_command"]
+           "plan_shift", "stretch_command", "turn_command"]
 
 
 @dataclass(frozen=True)
@@ -97,6 +97,16 @@ class DetourConfig:
     docs/reference/detours.md, "A robot the fleet restarts")."""
     pressed_share: float = 0.5
     """Share of the steps of the last ``stall_s`` with the filter acting that counts as held back."""
+    turn_first: bool = False
+    """Whether a unicycle turns on the spot before a steep ramp round a held robot (on for a
+    unicycle in a column: docs/reference/detours.md, "Turn first")."""
+    turn_first_rad: float = 0.785
+    """A unicycle on a detour's ramp in, further than this off the ramp's steepest heading ahead,
+    turns on the spot first [rad] (Nav2's RotationShimController, its ``angular_dist_threshold``
+    default; docs/reference/detours.md, "Turn first")."""
+    turn_done_rad: float = 0.3925
+    """... until it is within this of that heading [rad] (the shim's ``angular_disengage_threshold``
+    default)."""
 
 
 MIN_SPREAD = 0.25
@@ -201,6 +211,9 @@ class DetourPlan:
     passing: tuple[float, float] | None = None
     """A detour round a live teammate (reason ``passing``): where it was last seen; the detour
     is lengthened while it stays beside or ahead on the base lane."""
+    entered: bool = False
+    """A unicycle that turns first is out on the shifted lane: its controller steers again
+    (docs/reference/detours.md, "Turn first")."""
 
     def u(self, s: float) -> float:
         return self.direction * (s - self.s0)
@@ -228,6 +241,37 @@ class DetourStep:
     stretch: tuple[float, float, float] | None = None
     """An omni robot on a shifted lane: (the lane's stretch, the path's heading, the robot's
     heading) for :func:`stretch_command`; None otherwise (the command is passed on as it is)."""
+    turn: tuple[float, float] | None = None
+    """A unicycle to turn on the spot first: (the heading to turn to, the robot's heading) for
+    :func:`turn_command`; None otherwise."""
+    entering: bool = False
+    """A unicycle that turns first, on the ramp into its detour (turning, or driving out along
+    the turn): its controller is shown the ramp's steepest heading as the lane's
+    (docs/reference/detours.md, "Turn first")."""
+
+TURN_GAIN = 2.0
+"""Turn rate per radian of heading still to turn, on the spot [1/s] (chosen: the robot's own
+``omega_max`` caps it; E5.4's 1 rad/s from half a radian on)."""
+
+
+def turn_command(cmd, turn: tuple[float, float] | None, model=None, applied=None, dt: float = 0.0):
+    """A unicycle's command while it turns on the spot first (docs/reference/detours.md, "Turn
+    first"): its forward speed brought to 0 and its turn rate towards the heading ``turn[0]`` from
+    ``turn[1]`` (``TURN_GAIN`` per radian, capped at ``omega_max``), as fast as its base can from
+    the command it ``applied`` last (:func:`copath.models.limit_change`: ``a_max``,
+    ``alpha_max``); the same object when ``turn`` is None."""
+    if turn is None:
+        return cmd
+    err = (turn[0] - turn[1] + math.pi) % (2.0 * math.pi) - math.pi
+    w = TURN_GAIN * err
+    if model is not None:
+        w = max(-model.omega_max, min(model.omega_max, w))
+    out = np.array([0.0, w])
+    if model is not None and applied is not None and dt > 0:
+        from .models import limit_change  # noqa: PLC0415
+
+        out = limit_change(model, applied, out, dt)
+    return out
 
 
 def stretch_command(cmd, stretch: tuple[float, float, float] | None):
@@ -298,6 +342,13 @@ class DetourPlanner:
         self.detours = 0
         self._quiet_until = -math.inf
         """No new detour before this time (after one was given up) [s]."""
+        self._turning = False
+        """A unicycle turning on the spot before its ramp (:meth:`_entry_angle`)."""
+        self._turned_at = -math.inf
+        """The last instant it was turning on the spot [s]: no progress while it turns is not a
+        detour given up."""
+        self._quiet_held = False
+        """A held robot in reach at this step is only quiet (:meth:`step`)."""
         self.width = self.radius + config.margin_m + config.clearance_m
 
     # ------------------------------------------------------------------ discs
@@ -384,12 +435,16 @@ class DetourPlanner:
 
     # ------------------------------------------------------------------ step
     def step(self, t: float, pose, ranges=None, angles=None,
-             peers: Sequence[tuple[float, float, float, bool]] = (), pressed: bool = False) -> DetourStep:
+             peers: Sequence[tuple[float, float, float, bool]] = (), pressed: bool = False,
+             quiet_held: bool = False) -> DetourStep:
         """One control instant: the pose to show the controller and the detour's events.
 
         ``peers``: every other robot the runtime knows of as (x, y, radius, held): ``held``
         for a lost robot held still (a static obstacle), else a live neighbour's disc.
-        ``pressed``: the safety filter changed the robot's command at the step before."""
+        ``pressed``: the safety filter changed the robot's command at the step before.
+        ``quiet_held``: a held robot among them is only quiet, not lost: its disc grows with its
+        silence, and a robot that turns first does not (docs/reference/detours.md, "Turn first")."""
+        self._quiet_held = bool(quiet_held)
         pose = np.asarray(pose, dtype=float)
         p = pose[:2]
         discs = self._discs(t, pose, ranges, angles, peers)
@@ -444,7 +499,8 @@ class DetourPlanner:
                     self.detours += 1
                     events.append(("detour_start", {"reason": reason, "side": "left" if plan.target * plan.direction > 0 else "right",
                                                     "offset_m": round(abs(plan.target), 4), "s": round(s, 4)}))
-        elif not plan.abandoned and t - plan.started >= self.config.stall_s and self.stalled(t):
+        elif (not plan.abandoned and t - max(plan.started, self._turned_at) >= self.config.stall_s
+              and self.stalled(t)):
             # no progress on the detour itself (a unicycle that cannot turn round a block seen
             # too close): give it up smoothly and leave the robot to the safety filter a while
             plan.abandoned, plan.target = True, 0.0
@@ -468,16 +524,59 @@ class DetourPlanner:
             self.plan = None
             return DetourStep(pose, 0.0, events)
         d = plan.offset(s)
-        if d == 0.0:
+        entry = self._entry_angle(plan, s, p, th0, near) if self.unicycle else None
+        turn = None
+        if entry is not None:
+            want = th0 + (0.0 if plan.direction > 0 else math.pi) + entry
+            err = abs((want - float(pose[2]) + math.pi) % (2.0 * math.pi) - math.pi)
+            self._turning = err > (self.config.turn_done_rad if self._turning else self.config.turn_first_rad)
+            if self._turning:
+                self._turned_at = t
+                turn = (want, float(pose[2]))
+        else:
+            self._turning = False
+        if d == 0.0 and entry is None:
             return DetourStep(pose, 0.0, events)
         seen = pose.copy()
         seen[:2] = p - d * n0
         spread = 1.0 - k0 * (plan.q + d)
         if self.unicycle:
-            seen[2] = pose[2] - math.atan2(plan.slope(s), spread)
-            return DetourStep(seen, d, events)
+            seen[2] = pose[2] - (math.atan2(plan.slope(s), spread) if entry is None else plan.direction * entry)
+            return DetourStep(seen, d, events, turn=turn, entering=entry is not None)
         base = 1.0 - k0 * plan.q
         return DetourStep(seen, d, events, (spread / base, th0, float(pose[2])) if base > 1e-6 else None)
+
+    def _entry_angle(self, plan: DetourPlan, s: float, p: np.ndarray, th0: float, near: Sequence[Disc]
+                     ) -> float | None:
+        """The heading, off the direction of travel (> 0: to the left), that a unicycle which turns
+        first holds on the ramp into its detour; None when it does not turn first
+        (docs/reference/detours.md, "Turn first").
+
+        On the ramp into a detour (before the lane is fully shifted) the lane's heading is the
+        path's turned by the ramp's slope; a block met late gets a short, steep ramp (up to 70
+        degrees for 0.36 m over 0.25 m) that a unicycle driving on at its pace enters before it
+        has turned, into the block. So, as Nav2's RotationShimController does before its path
+        follower drives, a robot further than ``turn_first_rad`` off this heading turns on the
+        spot towards it until within ``turn_done_rad``, and its controller is shown it as the
+        lane's heading until the ramp is behind it, so that it drives out along the turn instead
+        of turning back to the ramp's flat start. A robot within a held disc's clearance (its
+        radius plus the detour's width) does not turn first: its way out is the tangent or
+        behind, where the safety filter's look-ahead rows steer it; nor does one whose ramp in
+        is behind it (``plan.entered`` from then on), nor one near a robot held because it is
+        quiet, whose disc, grown with its silence, gives gentler ramps and more robots turning
+        in a row."""
+        cfg = self.config
+        if not cfg.turn_first or plan.reason != "held" or plan.abandoned or plan.entered or self._quiet_held:
+            return None
+        u = plan.u(s)
+        reached = any(d.kind == "held" and math.hypot(d.x - float(p[0]), d.y - float(p[1])) < d.radius + self.width
+                      for d in near)
+        if u >= plan.u_lo or reached:
+            plan.entered = True  # on the shifted lane, or at the held disc's edge already: the controller steers
+            return None
+        ahead = plan.s0 + plan.direction * np.linspace(max(u, 0.0), plan.u_lo, 12)
+        steep = max((plan.slope(float(x)) for x in ahead), key=abs)
+        return plan.direction * math.atan2(steep, 1.0)
 
     def _lane(self, s: float, q: float, u0: float, u1: float, n: int = 25):
         """Points of the lane at lateral offset q from u0 to u1 ahead, with their s."""

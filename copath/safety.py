@@ -981,14 +981,19 @@ class SafetyFilter:
         return side
 
     def filter(self, pose, nominal, neighbours: Sequence[Neighbour] = (), ranges=None, angles=None,
-               tubes: Sequence[Tube] | TubeSet = ()) -> SafetyResult:
+               tubes: Sequence[Tube] | TubeSet = (), turning: bool = False) -> SafetyResult:
         """Minimally modify ``nominal`` so every barrier holds; return it unchanged if they do.
 
         When the solution slows the robot (its steered point's speed is a fraction r < 1 of the
         nominal's), the QP is solved once more towards the nominal turned right by
         ``deadlock_turn_rad`` (:meth:`biased_reference`; left beside a held robot,
         :meth:`turn_side`): a fixed, decentralised rule that breaks symmetric deadlocks and
-        keeps lockstep runs reproducible."""
+        keeps lockstep runs reproducible.
+
+        ``turning``: the robot is turning on the spot before a detour's ramp (docs/reference/detours.md,
+        "Turn first"): the soft look-ahead rows are left out, every other row is taken at the
+        nominal turn rate so that only v changes, and no deadlock turn is taken
+        (docs/reference/safety.md, "A turn on the spot")."""
         u_nom, u_sat, cap_ok = self._saturated(nominal)
         if cap_ok:
             h_min = self._clear(pose, neighbours, ranges, angles, tubes, u_sat)
@@ -996,6 +1001,15 @@ class SafetyFilter:
                 return SafetyResult(u_nom, False, 0.0, 0.0, h_min)
         u_sat = np.asarray(u_sat, dtype=float)
         A, rhs, soft, h_min = self.constraints(pose, neighbours, ranges, angles, tubes)
+        if self.lookahead and turning:
+            # a turn on the spot (a detour's turn first, docs/reference/detours.md): the centre rows
+            # carry the whole guarantee whatever the turn, and the soft look-ahead rows (the
+            # look-ahead point pushed out of a disc it is in) would only turn it the other way; the
+            # turn rate is the turn's, each row taken at it, so the filter moves v alone (a slack
+            # row with a small turn term, a tube's, would otherwise throw the rate to +-omega_max)
+            keep = soft != LOOKAHEAD
+            A, rhs, soft = A[keep], rhs[keep] - A[keep, 1] * u_sat[1], soft[keep]
+            A[:, 1] = 0.0
         if cap_ok and np.all(A @ u_sat >= rhs - 1e-12):
             return SafetyResult(u_nom, False, 0.0, 0.0, h_min)
         th = float(pose[2])
@@ -1005,7 +1019,8 @@ class SafetyFilter:
         ratio = float(np.hypot(*self.steered_velocity(u, th))) / speed_nom if speed_nom > 1e-9 else 1.0
         blocked = bool(np.any((A @ u_sat < rhs - 1e-12) & (soft != TUBE)))  # a barrier, not the cap or the tube
         if ok and blocked and ratio < SLOWED:
-            turn = 0.0 if self.in_column and any(nb.held for nb in neighbours) else self.turn
+            # no deadlock turn while the detour turns the robot, nor beside a held robot in a column
+            turn = 0.0 if turning or (self.in_column and any(nb.held for nb in neighbours)) else self.turn
             ref = self.biased_reference(u_sat, th, turn * self.turn_side(pose, u_sat, neighbours)) if turn else None
             if ref is not None:
                 ub, sb, okb = self._solve(A, rhs, ref, soft)
@@ -1719,7 +1734,7 @@ class SafetyGuard:
         return _arc(x, y, speed, c, s, self._vel[sender][2], age)
 
     def apply(self, pose, command, now: float, ranges=None, angles=None, lost=(), silent=(),
-              pose_t: float | None = None) -> SafetyResult:
+              pose_t: float | None = None, turning: bool = False) -> SafetyResult:
         """Filter one command and record the intervention. ``lost``: robots whose liveliness
         token went (``Observation.lost`` less the merely silent ones), which the simulator holds
         still: static obstacles from then on (:meth:`_held`). ``silent``: robots not heard for
@@ -1774,7 +1789,7 @@ class SafetyGuard:
             else:
                 pose = moved
             neighbours = [nb._replace(spread=_spread(nb) + reach) for nb in neighbours]
-        res = self.filter.filter(pose, command, neighbours, ranges, angles, tubes)
+        res = self.filter.filter(pose, command, neighbours, ranges, angles, tubes, turning)
         if res.active:
             self.interventions += 1
             self.change_max = max(self.change_max, res.change)

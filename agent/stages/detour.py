@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from copath.control import PeerMessage
-from copath.detour import DetourPlanner, stretch_command
+from copath.detour import DetourPlanner, stretch_command, turn_command
 from copath.scenario import Scenario
 from copath.wire.messages import Event
 
@@ -33,6 +33,8 @@ class DetourStage:
     def __init__(self, scenario: Scenario, name: str, planner: DetourPlanner | None) -> None:
         self.robot = name
         self.planner = planner
+        self._model = scenario.robot(name).model
+        self._dt = float(scenario.run.dt)
         self._radii = {r.name: r.model.radius for r in scenario.robots}
         self._positions: dict[str, tuple[float, float, float]] = {}
         """Without the safety filter: the last position each peer sent, and its stamp."""
@@ -47,16 +49,18 @@ class DetourStage:
         """The safety filter's count of changed commands at the last step."""
         self._stretch: tuple[float, float, float] | None = None
         """This step's lane stretch (an omni robot on a shifted lane; :func:`copath.detour.stretch_command`)."""
+        self._turn: tuple[float, float] | None = None
+        """This step's turn on the spot (a unicycle before a steep ramp; :func:`copath.detour.turn_command`)."""
 
     def step(self, now: float, pose: np.ndarray, ranges, angles, inbox: list[PeerMessage], events: list[Event],
              held: bool, liveness: LivenessStage, safety: SafetyStage | None) -> tuple[np.ndarray, float]:
         """The pose the controller sees and the lane's shift; the stage's events are appended
         to ``events``. A robot the runtime holds still (cut off) plans nothing."""
-        self._stretch = None
+        self._stretch = self._turn = None
         if self.planner is None or held:
             self._held_at = now
             return pose, 0.0
-        planner, peers = self.planner, []
+        planner, peers, quiet_held = self.planner, [], False
         # a robot just released from a cut-off hold judged the others silent from its own
         # deafness: until it has listened for a lease, their held discs are not blocks
         deaf = self._held_at is not None and now - self._held_at <= self._lease
@@ -75,8 +79,9 @@ class DetourStage:
             gone = lost | quiet
             for name, nb in safety.guard.named_neighbours(now):  # held discs, and live ones to tell teammates in the ring
                 spread = nb.spread if nb.spread is not None else nb.speed_max * nb.age
-                peers.append((nb.position[0], nb.position[1], nb.radius + (0.0 if nb.held else spread),
-                              nb.held and not deaf and name in gone))
+                held_now = nb.held and not deaf and name in gone
+                quiet_held = quiet_held or (held_now and name not in liveness.lost)
+                peers.append((nb.position[0], nb.position[1], nb.radius + (0.0 if nb.held else spread), held_now))
         else:
             for m in inbox:
                 if m.position is not None:
@@ -88,12 +93,18 @@ class DetourStage:
         if safety is not None:
             pressed = safety.guard.interventions != self._interventions
             self._interventions = safety.guard.interventions
-        out = planner.step(now, pose, ranges, angles, peers, pressed)
-        self._stretch = out.stretch
+        out = planner.step(now, pose, ranges, angles, peers, pressed, quiet_held)
+        self._stretch, self._turn = out.stretch, out.turn
         events += [Event(float(now), self.robot, what, detail) for what, detail in out.events]
         return out.pose, out.offset
 
-    def command(self, cmd):
-        """The controller's command mapped onto the shifted lane (:func:`copath.detour.stretch_command`;
-        the same object while no lane is shifted)."""
-        return stretch_command(cmd, self._stretch)
+    @property
+    def turning(self) -> bool:
+        """Whether this step turns the robot on the spot before a detour's ramp."""
+        return self._turn is not None
+
+    def command(self, cmd, applied=None):
+        """The controller's command mapped onto the shifted lane (:func:`copath.detour.stretch_command`),
+        or a turn on the spot before a steep ramp (:func:`copath.detour.turn_command`, from the
+        command the robot ``applied`` last); the same object while no lane is shifted."""
+        return turn_command(stretch_command(cmd, self._stretch), self._turn, self._model, applied, self._dt)

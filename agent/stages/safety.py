@@ -120,9 +120,11 @@ class SafetyStage:
                 self.guard.hear(env.sender, env.pos, env.stamp, env.vel, env.pos_t, env.acks)
 
     def apply(self, now: float, pose: np.ndarray, command: list[float], ranges, angles, held: bool,
-              telemetry: dict, liveness: LivenessStage, pose_t: float | None = None) -> list[float]:
+              telemetry: dict, liveness: LivenessStage, pose_t: float | None = None,
+              turning: bool = False) -> list[float]:
         """The filtered command at ``now`` (the command itself when ``held``: the others keep
-        out of a held robot's disc); ``pose_t`` is when ``pose`` was true (None: ``now``)."""
+        out of a held robot's disc); ``pose_t`` is when ``pose`` was true (None: ``now``);
+        ``turning``: the detour stage turns the robot on the spot (:meth:`copath.safety.SafetyFilter.filter`)."""
         t0 = time.perf_counter()
         if self._early:  # the first step: what was overheard before it, at this clock
             early, self._early = self._early, {}
@@ -136,7 +138,7 @@ class SafetyStage:
                 if not ranged or self._faults.in_range(env, pose):
                     hear(env.sender, env.pos, env.stamp, env.vel, env.pos_t, env.acks)
         res = self.guard.apply(pose, command, now, ranges, angles, liveness.lost, liveness.quiet_for_filter(now),
-                               pose_t)
+                               pose_t, turning)
         if not held:
             command = res.command.tolist()
         telemetry.update(safety_active=res.active, safety_change=res.change, safety_ms=(time.perf_counter() - t0) * 1e3)

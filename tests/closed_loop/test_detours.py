@@ -319,13 +319,18 @@ def test_e5_4_leaves_out_unacknowledged_plans_only_once_a_robot_is_held():
 
 
 @pytest.mark.slow
-def test_e5_4_with_r1_killed_at_30_s_the_robot_behind_it_can_brake_and_turn_off():
+def test_e5_4_with_r1_killed_at_30_s_the_robot_behind_it_can_brake_and_turn_off(monkeypatch):
     """E5.4 with r1 killed at 30 s: r2, 0.4 m behind it, must stop and turn about 90 degrees off its
     lane. Every plan of the last 2.5 s it promised (committed plans, a braking of 0.1 m/s^2)
     holds it on its way into r1's disc; leaving out the plans nobody holds any more
     (``acknowledge_plans = "while_held"``, what E5.4 ships) it turns off and every live robot
     makes at least 90 % of its progress without the kill (94.5 % measured), against 87.4 % keeping
-    them all (docs/journal/detours.md, "Promises that hold the robot behind a held one")."""
+    them all (docs/journal/detours.md, "Promises that hold the robot behind a held one"). Measured
+    without the turn first, which stops r2 before its ramp whatever it promised (with it: 94.3 %
+    and 93.6 %)."""
+    from copath.detour import DetourPlanner  # noqa: PLC0415
+
+    monkeypatch.setattr(DetourPlanner, "_entry_angle", lambda self, *a: None)
     scen = load_scenario(config("e5.4-")).with_overrides(run={"on_robot_failure": "continue"})
     without = _progress(run_scenario(scen, duration_s=80.0), scen)
     shares = {}
@@ -336,3 +341,58 @@ def test_e5_4_with_r1_killed_at_30_s_the_robot_behind_it_can_brake_and_turn_off(
         got = _progress(res, s)
         shares[ack] = min(got[n] / without[n] for n in got if n != "r1")
     assert shares["while_held"] >= 0.9 and shares[False] < 0.9, shares
+
+
+def test_e5_4_with_r4_killed_at_30_s_the_robot_behind_it_turns_first_and_the_column_keeps_its_order(monkeypatch):
+    """E5.4 with r4 killed at 30 s, r5 0.55 m behind it: r5 turns on the spot towards the steep
+    ramp of its detour before it drives on (docs/reference/detours.md, "Turn first") and goes round
+    r4 ahead of r6, so the column keeps its order. Without the turn r5 rolls on into r4's disc,
+    stands pressed against it, and r6 passes it (the inversion of docs/journal/detours.md)."""
+    from copath.detour import DetourPlanner  # noqa: PLC0415
+
+    scen = load_scenario(config("e5.4-")).with_overrides(run={"on_robot_failure": "continue"})
+
+    def gap(res) -> np.ndarray:  # r5's path coordinate less r6's, from the truth, after the kill
+        ser = truth_series(res.trace, scen)
+        after = ser.t >= 30.0
+        return (ser.s["r5"] - ser.s["r6"])[after]
+
+    kept = gap(run_scenario(scen, duration_s=45.0, kills={"r4": 30.0}))
+    monkeypatch.setattr(DetourPlanner, "_entry_angle", lambda self, *a: None)
+    rolled = gap(run_scenario(scen, duration_s=45.0, kills={"r4": 30.0}))
+    assert kept.min() > 0.1, kept.min()  # r5 stays ahead of r6 (0.5 m apart in the column)
+    assert rolled.min() < 0.0, rolled.min()  # r6 went past r5
+
+
+def test_no_robot_turns_first_round_a_robot_held_because_it_is_quiet(monkeypatch):
+    """The r1-lost variant (r1's radio quiet from 10 s, held as a disc grown with its silence):
+    the column goes round it as it did before the turn first, to the bit (docs/reference/detours.md,
+    "Turn first": round a quiet robot four robots turned in a row and each made 3 % less
+    progress); the detour stage is told which held robots are only quiet."""
+    from copath.detour import DetourPlanner  # noqa: PLC0415
+
+    scen = load_scenario(config("e5.4-six-robots-lemniscate-r1-lost"))
+    calls = []
+    step = DetourPlanner.step
+    monkeypatch.setattr(DetourPlanner, "step", lambda self, *a: calls.append(a[-1]) or step(self, *a))
+    shipped = run_scenario(scen, duration_s=25.0).metrics
+    assert any(calls)  # told: some steps had a quiet held robot in reach
+    monkeypatch.setattr(DetourPlanner, "_entry_angle", lambda self, *a: None)
+    never = run_scenario(scen, duration_s=25.0).metrics
+    for n, r in shipped["robots"].items():
+        assert r["path_progress_m"] == never["robots"][n]["path_progress_m"], n
+    assert sum(r["detours"] for r in shipped["robots"].values()) == 5
+
+
+@pytest.mark.slow
+def test_e5_4_with_r4_killed_at_30_s_is_back_in_coordination_within_20_s_of_the_pass():
+    """The same kill graded as the failure sweep grades it (issue 20's goal): every live robot at
+    least 90 % of its progress without the kill, and the coordination among the live robots back
+    under 0.05 m within 20 s after the last of them has passed r4 (10.8 s measured; 25.8 s before
+    the turn first, the column inverted)."""
+    from orchestrator.studies.bench.failure_sweep import baseline, run_case  # noqa: PLC0415
+
+    scen = load_scenario(config("e5.4-"))
+    row = run_case(scen, "kill", "r4", 30.0, 80.0, baseline(scen, 80.0))
+    assert row["collisions"] == 0 and row["progress_min"] >= 0.9, row
+    assert row["recoord_after_pass_max_s"] is not None and row["recoord_after_pass_max_s"] <= 20.0, row["passes"]

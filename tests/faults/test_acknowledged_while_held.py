@@ -1,12 +1,16 @@
-"""E5.4's ``safety.acknowledge_plans = "while_held"`` over Zenoh, under both clocks
-(docs/reference/safety.md, "Acknowledged plans while a robot is held"): a robot process killed
-mid-run, the live robots leave out the plans no robot holds any more from its loss on, and
-only then; they go round it and touch nothing."""
+"""E5.4 with a robot process killed mid-run, over Zenoh, under both clocks: the live robots leave
+out the plans no robot holds any more from its loss on, and only then
+(``safety.acknowledge_plans = "while_held"``, docs/reference/safety.md, "Acknowledged plans while
+a robot is held"); the robot just behind the killed one turns first and goes round it ahead of
+the next (docs/reference/detours.md, "Turn first"), and nothing touches."""
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
+from copath.scenario import load_scenario
+from copath.slots import track_coordinate
 from orchestrator.testkit.processes import killed_mid_run
 from orchestrator.testkit.records import closing_counters
 from tests.conftest import config
@@ -31,3 +35,10 @@ def test_after_a_kill_the_live_robots_leave_out_unacknowledged_plans_over_zenoh(
     after = (duration - lost[0]) / 0.1 + 3  # steps after the loss (a realtime step may come early)
     assert all(0 < k <= after for k in steps.values()), (steps, lost)
     assert m["robots"]["r5"]["detours"] >= 1  # right behind r4 on the column: it went round
+    # the column keeps its order round r4: r5 stays ahead of r6 along the path (from the truth)
+    scen = load_scenario(config("e5.4-six-robots-lemniscate"))
+    truth = sorted((r for _, _, r in records if getattr(r, "TYPE", "") == "truth"), key=lambda r: r.t)
+    xy = {n: np.array([r.poses[r.names.index(n)][:2] for r in truth]) for n in ("r5", "r6")}
+    s5, s6 = (track_coordinate(scen.paths["main"], xy[n]) for n in ("r5", "r6"))
+    after = np.array([r.t for r in truth]) >= lost[0]
+    assert float((s5 - s6)[after].min()) > 0.1, float((s5 - s6)[after].min())

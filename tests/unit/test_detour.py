@@ -8,7 +8,8 @@ import math
 import numpy as np
 import pytest
 
-from copath.detour import DetourConfig, DetourPlanner, bump, plan_shift, polygon_disc, ray_discs, stretch_command
+from copath.detour import (DetourConfig, DetourPlanner, bump, plan_shift, polygon_disc, ray_discs, stretch_command,
+                           turn_command)
 from copath.paths import circle, line
 
 DT = 0.1
@@ -266,3 +267,57 @@ def test_a_robot_stalled_at_a_block_sees_the_shift_at_once():
     assert abs(offsets[0]) > 0.9 * abs(stalled.plan.target) > 0.1 and offsets[-1] == offsets[0]
     fresh = DetourPlanner(path, R, True, DT)  # just arrived: the ramp begins where it stands
     assert all(abs(o) < 1e-12 for o in shown(fresh, 0.0)) and fresh.plan is not None
+
+
+def test_a_unicycle_in_a_column_turns_on_the_spot_before_a_steep_ramp_round_a_held_robot():
+    """docs/reference/detours.md, "Turn first": a held disc met 0.5 m ahead gets the shortest ramp
+    (0.25 m for about 0.35 m of shift, up to 70 degrees); a unicycle in a column, heading along
+    its path, is told to turn on the spot towards the ramp's steepest heading and to stop turning
+    once within 0.3925 rad of it; its controller is shown that heading as the lane's until the
+    ramp is behind it. Not for a disc that is not held, nor for a robot on a path of its own
+    (the default), nor for an omni robot, nor for one at the held disc's edge already, nor
+    round a robot held because it is quiet."""
+    path = line((-1.0, 0.0), 0.0, 20.0)
+    block = [(0.55, 0.0, 0.2, True)]
+    cfg = DetourConfig(turn_first=True)
+
+    def first(planner, heading=0.0, peers=block, x=0.0):
+        return planner.step(0.0, np.array([x, 0.0, heading]), peers=peers)
+
+    column = DetourPlanner(path, R, True, DT, config=cfg)
+    step = first(column)
+    assert column.plan is not None and column.plan.reason == "held" and step.turn is not None
+    want, heading = step.turn
+    assert -1.45 < want < -0.8 and heading == 0.0  # to the right (the default side), steeply
+    assert step.entering and step.pose[2] == pytest.approx(-want)  # the controller sees the lane turned as much
+    # turned most of the way: still turning (hysteresis), then within 0.3925 rad: done
+    assert column.step(0.1, np.array([0.0, 0.0, want + 0.5]), peers=block).turn is not None
+    done = column.step(0.2, np.array([0.0, 0.0, want + 0.3]), peers=block)
+    assert done.turn is None and done.entering and done.pose[2] == pytest.approx(0.3)  # it drives on out
+    assert column.step(0.3, np.array([0.0, 0.0, want + 0.6]), peers=block).turn is None  # 0.785 to engage again
+    assert first(DetourPlanner(path, R, True, DT)).turn is None  # a path of its own: the default
+    assert first(DetourPlanner(path, R, False, DT, config=cfg)).turn is None  # omni
+    box = DetourPlanner(path, R, True, DT, known=[(_box(0.55, 0.0), (0.0, 0.0))], config=cfg)
+    assert first(box, peers=()).turn is None and box.plan is not None  # a box, not a held robot
+    quiet = DetourPlanner(path, R, True, DT, config=cfg)  # the held robot is only quiet: its disc grows
+    silent = quiet.step(0.0, np.array([0.0, 0.0, 0.0]), peers=block, quiet_held=True)
+    assert quiet.plan is not None and silent.turn is None and not silent.entering
+    edge = DetourPlanner(path, R, True, DT, config=cfg)  # 0.3 m from its centre: within 0.2 m + the width, 0.13 m
+    reached = first(edge, x=0.25)
+    assert edge.plan is not None and reached.turn is None and not reached.entering and edge.plan.entered
+
+
+def test_the_turn_on_the_spot_stops_and_turns_within_the_bases_limits():
+    """The command while turning: forward speed to 0 and a turn towards the heading, capped at
+    omega_max, reached from the applied command at a_max and alpha_max as the base would."""
+    from copath.models import UnicycleModel  # noqa: PLC0415
+
+    model = UnicycleModel(v_max=0.5, omega_max=1.0, a_max=0.3, alpha_max=1.0)
+    assert turn_command([0.2, 0.0], None) == [0.2, 0.0]  # not turning: the controller's own
+    free = turn_command([0.2, 0.0], (-1.0, 0.0))
+    assert free[0] == 0.0 and free[1] == pytest.approx(-2.0)  # no model: 2 rad/s per radian
+    capped = turn_command([0.2, 0.0], (-1.0, 0.0), model)
+    assert capped.tolist() == [0.0, -1.0]
+    step = turn_command([0.2, 0.0], (-1.0, 0.0), model, applied=np.array([0.2, 0.0]), dt=DT)
+    assert abs(step[0] - 0.2) <= 0.3 * DT + 1e-12 and abs(step[1]) <= 1.0 * DT + 1e-12
+    assert step[0] < 0.2 and step[1] < 0.0  # on its way to (0, -1)

@@ -616,3 +616,28 @@ def test_deadlock_rule_turns_left_beside_a_held_robot_on_the_right():
     assert off.turn_side(pose, nominal, [held_right]) == 1 and off.filter(pose, nominal, [held_right]).command[1] < 0
     with pytest.raises(ConfigError, match=r"safety.held_turn_m = -0.1 is not allowed; must be >= 0"):
         from_table(SafetyConfig, {"held_turn_m": -0.1}, "safety")
+
+
+def test_while_a_detour_turns_the_robot_the_filter_brakes_and_leaves_the_turn_alone():
+    """A unicycle pressed against a held disc ahead on its right, turned right on the spot by a
+    detour's turn first (docs/reference/detours.md, "Turn first"; docs/reference/safety.md, "A
+    turn on the spot"): the filter lets the turn through, where the soft look-ahead row (its
+    look-ahead point pushed out of the disc) would turn it back left. Asked to drive as well,
+    it brakes and keeps the turn rate: every row is taken at the turn's rate, so neither a soft
+    row's slack nor the deadlock rule throws the rate to the other side."""
+    model = UnicycleModel(v_max=0.5, omega_max=1.0)
+    f = SafetyFilter(CFG, model, 0.1)
+    pose = [0.0, 0.0, 0.0]
+    held = Neighbour((0.2, -0.03), 0.0, 0.1, 0.5, spread=0.0, held=True)  # the look-ahead point inside its disc
+    A, rhs, soft, _ = f.constraints(pose, [held])
+    assert np.any((soft == 1) & (A @ np.array([0.0, -1.0]) < rhs))  # the look-ahead row refuses the turn
+    assert f.filter(pose, [0.0, -1.0], [held]).command[1] > -0.9  # not turning: it turns it back
+    res = f.filter(pose, [0.0, -1.0], [held], turning=True)
+    assert not res.active and res.command.tolist() == [0.0, -1.0]
+    free = f.filter(pose, [0.3, -0.5], [held])
+    assert free.biased and free.command[1] > 0.0  # not turning: the deadlock rule turns it left
+    braked = f.filter(pose, [0.3, -0.5], [held], turning=True)
+    assert braked.active and not braked.biased and 0.0 <= braked.command[0] < 0.3
+    assert braked.command[1] == pytest.approx(-0.5, abs=1e-9)
+    A, rhs, _, _ = f.constraints(pose, [held])
+    assert np.all((A @ braked.command >= rhs - 1e-9) | (soft != 0))  # the centre rows hold at the turn's rate

@@ -321,3 +321,23 @@ def test_the_turn_on_the_spot_stops_and_turns_within_the_bases_limits():
     step = turn_command([0.2, 0.0], (-1.0, 0.0), model, applied=np.array([0.2, 0.0]), dt=DT)
     assert abs(step[0] - 0.2) <= 0.3 * DT + 1e-12 and abs(step[1]) <= 1.0 * DT + 1e-12
     assert step[0] < 0.2 and step[1] < 0.0  # on its way to (0, -1)
+
+
+def test_a_robot_turning_on_the_spot_has_not_given_up_its_detour():
+    """No progress while it turns first is not a stalled detour (the give-up after ``stall_s``
+    counts from the last turning instant): a robot held facing the block for 8 s keeps its
+    detour; the same robot not turning gives it up after 4 s."""
+    path = line((-1.0, 0.0), 0.0, 20.0)
+    block = [(0.55, 0.0, 0.2, True)]
+
+    def given_up(planner, forget_turn: bool):
+        for k in range(80):
+            planner.step(k * DT, np.array([0.0, 0.0, 0.0]), peers=block, pressed=True)
+            if forget_turn:
+                planner._turned_at = -math.inf
+            if planner.plan is not None and planner.plan.abandoned:
+                return k * DT
+        return None
+
+    assert given_up(DetourPlanner(path, R, True, DT, config=DetourConfig(turn_first=True)), False) is None
+    assert given_up(DetourPlanner(path, R, True, DT, config=DetourConfig(turn_first=True)), True) == pytest.approx(4.0)

@@ -102,14 +102,12 @@ def detour_planner(scenario: Scenario, name: str) -> DetourPlanner | None:
     # the filter's deadlock rule (a right turn while a barrier slows the robot) already unwinds
     # head-on jams where it is on (unicycles by default): the stage's stall rule is for the rest
     ruled = scenario.safety.enabled and (UNICYCLE_TURN_RAD if turn is None and unicycle else (turn or 0.0)) > 0
-    # a unicycle in a column turns on the spot before a steep ramp round a held robot (its filter
-    # takes no deadlock turn beside one there: docs/reference/detours.md, "Turn first")
-    column = bool(spec.path) and any(r.path == spec.path for r in scenario.robots if r.name != name)
     return DetourPlanner(scenario.paths[path], spec.model.radius, unicycle,
                          scenario.run.dt, [(o.vertices, o.velocity) for o in scenario.obstacles if o.known],
                          scenario.sensors.max_range_m if scenario.sensors.enabled else 0.0,
                          DetourConfig(margin_m=scenario.safety.margin_m, stall_detours=not ruled,
-                                      turn_first=unicycle and column))
+                                      # its filter takes no deadlock turn beside a held robot there
+                                      turn_first=unicycle and scenario.in_column(name)))
 
 
 @dataclass

@@ -54,7 +54,8 @@ from typing import Iterable, Sequence
 
 import numpy as np
 
-from .paths import Path
+from .models import limit_change
+from .paths import Path, wrap_to_pi
 
 __all__ = ["DetourConfig", "Disc", "DetourPlan", "DetourPlanner", "DetourStep", "bump", "polygon_disc", "ray_discs",
            "plan_shift", "stretch_command", "turn_command"]
@@ -226,6 +227,12 @@ class DetourPlan:
         return self.height * self.direction * _bump_slope(self.u(s), self.u_lo, self.u_hi, self.ramp_in,
                                                           self.ramp_out)
 
+    def steepest_in(self, s: float) -> float:
+        """The steepest slope of the ramp in still ahead of ``s``: the smoothstep is steepest
+        half way up (15/8 of its mean slope), and falls after."""
+        mid = self.u_lo - 0.5 * self.ramp_in
+        return self.slope(self.s0 + self.direction * max(self.u(s), mid))
+
     def done(self, s: float) -> bool:
         return self.u(s) >= self.u_hi + self.ramp_out
 
@@ -244,10 +251,7 @@ class DetourStep:
     turn: tuple[float, float] | None = None
     """A unicycle to turn on the spot first: (the heading to turn to, the robot's heading) for
     :func:`turn_command`; None otherwise."""
-    entering: bool = False
-    """A unicycle that turns first, on the ramp into its detour (turning, or driving out along
-    the turn): its controller is shown the ramp's steepest heading as the lane's
-    (docs/reference/detours.md, "Turn first")."""
+
 
 TURN_GAIN = 2.0
 """Turn rate per radian of heading still to turn, on the spot [1/s] (chosen: the robot's own
@@ -262,14 +266,11 @@ def turn_command(cmd, turn: tuple[float, float] | None, model=None, applied=None
     ``alpha_max``); the same object when ``turn`` is None."""
     if turn is None:
         return cmd
-    err = (turn[0] - turn[1] + math.pi) % (2.0 * math.pi) - math.pi
-    w = TURN_GAIN * err
+    w = TURN_GAIN * wrap_to_pi(turn[0] - turn[1])
     if model is not None:
         w = max(-model.omega_max, min(model.omega_max, w))
     out = np.array([0.0, w])
     if model is not None and applied is not None and dt > 0:
-        from .models import limit_change  # noqa: PLC0415
-
         out = limit_change(model, applied, out, dt)
     return out
 
@@ -347,8 +348,6 @@ class DetourPlanner:
         self._turned_at = -math.inf
         """The last instant it was turning on the spot [s]: no progress while it turns is not a
         detour given up."""
-        self._quiet_held = False
-        """A held robot in reach at this step is only quiet (:meth:`step`)."""
         self.width = self.radius + config.margin_m + config.clearance_m
 
     # ------------------------------------------------------------------ discs
@@ -444,7 +443,6 @@ class DetourPlanner:
         ``pressed``: the safety filter changed the robot's command at the step before.
         ``quiet_held``: a held robot among them is only quiet, not lost: its disc grows with its
         silence, and a robot that turns first does not (docs/reference/detours.md, "Turn first")."""
-        self._quiet_held = bool(quiet_held)
         pose = np.asarray(pose, dtype=float)
         p = pose[:2]
         discs = self._discs(t, pose, ranges, angles, peers)
@@ -524,11 +522,11 @@ class DetourPlanner:
             self.plan = None
             return DetourStep(pose, 0.0, events)
         d = plan.offset(s)
-        entry = self._entry_angle(plan, s, p, th0, near) if self.unicycle else None
+        entry = self._entry_angle(plan, s, p, near, quiet_held) if self.unicycle else None
         turn = None
         if entry is not None:
             want = th0 + (0.0 if plan.direction > 0 else math.pi) + entry
-            err = abs((want - float(pose[2]) + math.pi) % (2.0 * math.pi) - math.pi)
+            err = abs(wrap_to_pi(want - float(pose[2])))
             self._turning = err > (self.config.turn_done_rad if self._turning else self.config.turn_first_rad)
             if self._turning:
                 self._turned_at = t
@@ -542,11 +540,11 @@ class DetourPlanner:
         spread = 1.0 - k0 * (plan.q + d)
         if self.unicycle:
             seen[2] = pose[2] - (math.atan2(plan.slope(s), spread) if entry is None else plan.direction * entry)
-            return DetourStep(seen, d, events, turn=turn, entering=entry is not None)
+            return DetourStep(seen, d, events, turn=turn)
         base = 1.0 - k0 * plan.q
         return DetourStep(seen, d, events, (spread / base, th0, float(pose[2])) if base > 1e-6 else None)
 
-    def _entry_angle(self, plan: DetourPlan, s: float, p: np.ndarray, th0: float, near: Sequence[Disc]
+    def _entry_angle(self, plan: DetourPlan, s: float, p: np.ndarray, near: Sequence[Disc], quiet_held: bool
                      ) -> float | None:
         """The heading, off the direction of travel (> 0: to the left), that a unicycle which turns
         first holds on the ramp into its detour; None when it does not turn first
@@ -566,7 +564,7 @@ class DetourPlanner:
         quiet, whose disc, grown with its silence, gives gentler ramps and more robots turning
         in a row."""
         cfg = self.config
-        if not cfg.turn_first or plan.reason != "held" or plan.abandoned or plan.entered or self._quiet_held:
+        if not cfg.turn_first or plan.reason != "held" or plan.abandoned or plan.entered or quiet_held:
             return None
         u = plan.u(s)
         reached = any(d.kind == "held" and math.hypot(d.x - float(p[0]), d.y - float(p[1])) < d.radius + self.width
@@ -574,9 +572,7 @@ class DetourPlanner:
         if u >= plan.u_lo or reached:
             plan.entered = True  # on the shifted lane, or at the held disc's edge already: the controller steers
             return None
-        ahead = plan.s0 + plan.direction * np.linspace(max(u, 0.0), plan.u_lo, 12)
-        steep = max((plan.slope(float(x)) for x in ahead), key=abs)
-        return plan.direction * math.atan2(steep, 1.0)
+        return plan.direction * math.atan2(plan.steepest_in(s), 1.0)
 
     def _lane(self, s: float, q: float, u0: float, u1: float, n: int = 25):
         """Points of the lane at lateral offset q from u0 to u1 ahead, with their s."""

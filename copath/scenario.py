@@ -312,6 +312,13 @@ class Scenario:
     def robot_names(self) -> tuple[str, ...]:
         return tuple(r.name for r in self.robots)
 
+    def in_column(self, name: str) -> bool:
+        """Whether another robot follows the path robot ``name`` follows (its safety filter and
+        its detours treat it as one of a column: docs/reference/safety.md, "Deadlock rule";
+        docs/reference/detours.md, "Turn first")."""
+        path = self.robot(name).path
+        return path is not None and any(r.path == path for r in self.robots if r.name != name)
+
     def robot(self, name: str) -> RobotSpec:
         for r in self.robots:
             if r.name == name:

@@ -55,13 +55,12 @@ class SafetyStage:
     def __init__(self, scenario: Scenario, name: str, rule: CutOffRule, trust: TrustStage, faults: FaultStage,
                  counters: Counters, listened: frozenset[str]) -> None:
         self.robot = name
-        path = scenario.robot(name).path
         self.guard = SafetyGuard(GuardConfig(
             safety=scenario.safety, name=name, models={r.name: r.model for r in scenario.robots}, dt=scenario.run.dt,
             sensor_count=scenario.sensors.count if scenario.sensors.enabled else 0,
             silent_hold_s=rule.silent_hold_s, handles_cut_off=rule.handled_by_controller,
             lag_periods=command_lag_periods(scenario),
-            in_column=path is not None and any(r.path == path for r in scenario.robots if r.name != name)))
+            in_column=scenario.in_column(name)))
         self._overhear = (FaultyInbox(LinkFaults(scenario.network, scenario.run.seed + OVERHEAR_SEED, name))
                           if scenario.safety.overhear else None)
         self._trust = trust

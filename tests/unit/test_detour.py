@@ -289,11 +289,11 @@ def test_a_unicycle_in_a_column_turns_on_the_spot_before_a_steep_ramp_round_a_he
     assert column.plan is not None and column.plan.reason == "held" and step.turn is not None
     want, heading = step.turn
     assert -1.45 < want < -0.8 and heading == 0.0  # to the right (the default side), steeply
-    assert step.entering and step.pose[2] == pytest.approx(-want)  # the controller sees the lane turned as much
+    assert step.pose[2] == pytest.approx(-want)  # the controller sees the lane turned as much
     # turned most of the way: still turning (hysteresis), then within 0.3925 rad: done
     assert column.step(0.1, np.array([0.0, 0.0, want + 0.5]), peers=block).turn is not None
     done = column.step(0.2, np.array([0.0, 0.0, want + 0.3]), peers=block)
-    assert done.turn is None and done.entering and done.pose[2] == pytest.approx(0.3)  # it drives on out
+    assert done.turn is None and done.pose[2] == pytest.approx(0.3)  # it drives on out
     assert column.step(0.3, np.array([0.0, 0.0, want + 0.6]), peers=block).turn is None  # 0.785 to engage again
     assert first(DetourPlanner(path, R, True, DT)).turn is None  # a path of its own: the default
     assert first(DetourPlanner(path, R, False, DT, config=cfg)).turn is None  # omni
@@ -301,10 +301,10 @@ def test_a_unicycle_in_a_column_turns_on_the_spot_before_a_steep_ramp_round_a_he
     assert first(box, peers=()).turn is None and box.plan is not None  # a box, not a held robot
     quiet = DetourPlanner(path, R, True, DT, config=cfg)  # the held robot is only quiet: its disc grows
     silent = quiet.step(0.0, np.array([0.0, 0.0, 0.0]), peers=block, quiet_held=True)
-    assert quiet.plan is not None and silent.turn is None and not silent.entering
+    assert quiet.plan is not None and silent.turn is None and silent.pose[2] == 0.0  # shown its own heading
     edge = DetourPlanner(path, R, True, DT, config=cfg)  # 0.3 m from its centre: within 0.2 m + the width, 0.13 m
     reached = first(edge, x=0.25)
-    assert edge.plan is not None and reached.turn is None and not reached.entering and edge.plan.entered
+    assert edge.plan is not None and reached.turn is None and edge.plan.entered
 
 
 def test_the_turn_on_the_spot_stops_and_turns_within_the_bases_limits():
@@ -341,3 +341,20 @@ def test_a_robot_turning_on_the_spot_has_not_given_up_its_detour():
 
     assert given_up(DetourPlanner(path, R, True, DT, config=DetourConfig(turn_first=True)), False) is None
     assert given_up(DetourPlanner(path, R, True, DT, config=DetourConfig(turn_first=True)), True) == pytest.approx(4.0)
+
+
+def test_the_steepest_slope_of_the_ramp_in_ahead():
+    """``DetourPlan.steepest_in``: the steepest slope of the ramp in from a point on, the
+    smoothstep's half-way slope (15/8 of the mean) before half way, the slope itself after; the
+    densely sampled maximum agrees."""
+    path = line((-1.0, 0.0), 0.0, 20.0)
+    planner = DetourPlanner(path, R, True, DT, config=DetourConfig(turn_first=True))
+    planner.step(0.0, np.array([0.0, 0.0, 0.0]), peers=[(0.55, 0.0, 0.2, True)])
+    plan = planner.plan
+    start = plan.u_lo - plan.ramp_in
+    for u in (start - 0.1, start, start + 0.3 * plan.ramp_in, start + 0.7 * plan.ramp_in, plan.u_lo - 1e-6):
+        s = plan.s0 + plan.direction * u
+        dense = [plan.slope(plan.s0 + plan.direction * x) for x in np.linspace(max(u, start), plan.u_lo, 2001)]
+        assert plan.steepest_in(s) == pytest.approx(max(dense, key=abs), rel=1e-5)
+    assert abs(plan.steepest_in(plan.s0 + plan.direction * start)) == pytest.approx(
+        1.875 * abs(plan.height) / plan.ramp_in)

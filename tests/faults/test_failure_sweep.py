@@ -31,6 +31,11 @@ def test_the_sweep_kills_each_robot_and_the_column_never_touches_it(capsys):
     assert all(p["end_s"] is None and p["recoord_s"] is None for p in last["passes"])
     assert last["recoord_after_pass_max_s"] is None
     assert out["runs_not_recoordinated_within_20s_of_the_pass"] == 0 and out["runs_with_no_pass_to_grade"] == 1
+    # each ended pass beside the run without the failure from the same instant: the column is
+    # coordinated there, so at once; no slow pass, so no verdict on whose it is
+    assert all(p["recoord_without_failure_s"] == 0.0 for p in first["passes"])
+    assert all(r["recoord_slow_without_failure_too"] is None for r in runs)
+    assert out["of_which_slow_without_the_failure_too"] == 0
 
 
 def test_the_sweep_takes_its_own_times_and_victims_and_refuses_a_stranger(capsys):

@@ -31,3 +31,31 @@ def test_the_victim_s_own_detours_and_those_before_the_fault_are_not_passes():
               ev(22.0, "sim", "robot_lost")]  # other events are not detours
     assert pass_spans(events, "r1", 10.0) == [[20.0, 21.0]]
     assert pass_spans([], "r1", 10.0) == []
+
+
+def _row(passes):
+    from orchestrator.studies.bench.failure_sweep import _recoord_text, _slow_without_failure, _worst_recoord  # noqa: PLC0415
+
+    row = {"passes": passes, "recoord_after_pass_max_s": _worst_recoord(passes),
+           "recoord_slow_without_failure_too": _slow_without_failure(passes)}
+    return row, _recoord_text(row)
+
+
+def test_a_slow_pass_is_told_apart_when_the_run_without_the_failure_is_no_faster_from_that_instant():
+    """The circle swap's own team is not back under 0.05 m within 20 s of its crossing: a pass
+    that ends there misses the goal in the run without the failure too, and the sweep says so
+    beside the figure, the figure unchanged (it still counts as a miss)."""
+    own, text = _row([{"end_s": 34.3, "recoord_s": 27.7, "window_s": 30.7, "recoord_without_failure_s": None}])
+    assert own["recoord_after_pass_max_s"] == 27.7 and own["recoord_slow_without_failure_too"] is True
+    assert text.endswith("recoord <= 27.7 s (without the failure: not by the run's end)")
+    # the failure's own: the run without it is back at once from the same instant
+    failure, text = _row([{"end_s": 40.0, "recoord_s": 22.4, "window_s": 30.0, "recoord_without_failure_s": 0.0}])
+    assert failure["recoord_slow_without_failure_too"] is False and text.endswith("recoord <= 22.4 s")
+    # two passes, one slow by the failure: not the scenario's own
+    mixed, _ = _row([{"end_s": 20.0, "recoord_s": 25.0, "window_s": 30.0, "recoord_without_failure_s": 3.0},
+                     {"end_s": 60.0, "recoord_s": 30.0, "window_s": 30.0, "recoord_without_failure_s": None}])
+    assert mixed["recoord_slow_without_failure_too"] is False
+    # within the goal, or not compared: no verdict
+    assert _row([{"end_s": 20.0, "recoord_s": 5.0, "window_s": 30.0, "recoord_without_failure_s": None}])[0][
+        "recoord_slow_without_failure_too"] is None
+    assert _row([{"end_s": 20.0, "recoord_s": 25.0, "window_s": 30.0}])[0]["recoord_slow_without_failure_too"] is None

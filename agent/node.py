@@ -28,10 +28,11 @@ import dataclasses
 import logging
 import os
 import queue
+import signal
 import sys
 import threading
 import time
-from typing import NamedTuple
+from typing import Callable, NamedTuple
 
 from copath.scenario import ConfigError, load_scenario
 from copath.wire.cli import add_config_arguments, session_config_from_args
@@ -55,7 +56,11 @@ __all__ = ["AgentNode", "main"]
 
 
 class AgentNode:
-    def __init__(self, runtime: RobotRuntime, keys: Keys, link: Link, clock: str) -> None:
+    def __init__(self, runtime: RobotRuntime, keys: Keys, link: Link, clock: str,
+                 die: Callable[[], None] | None = None) -> None:
+        """``die``: how this process dies at the scenario's kills of its robot (``run.kills``; a
+        fleet's agent: SIGKILL of itself). In one process the loop closes the robot's link at
+        the same tick instead (:func:`orchestrator.run.inprocess.run_scenario`)."""
         self.rt = runtime
         self.keys = keys
         self.link = link
@@ -95,10 +100,27 @@ class AgentNode:
         self.joined_late = False
         """The run had started before this process: a restart (``run.on_robot_failure``)."""
         self._first_step_logged = False
+        self._die = die
+        run = runtime.scenario.run
+        self._kills = sorted(k.at_s + 0.5 * run.dt for k in run.kills if k.robot == runtime.name) if die else []
+        """Observation times from which this robot's declared kills are due: the first
+        observation after ``at_s`` (the one-process loop's tick, :func:`orchestrator.run.inprocess.run_scenario`)."""
+        self._first_obs_t: float | None = None
 
     # -- receive: one callback per record type (link threads, or inline) -------------
+    def _kill_due(self, t: float) -> bool:
+        """A declared kill falls due at an observation of time ``t``: this process was running
+        before it (a process restarted after a kill is not killed by it again, only by a later one)."""
+        if self._first_obs_t is None:
+            self._first_obs_t = t
+        return any(self._first_obs_t < due <= t for due in self._kills)
+
     def _on_obs(self, key: str, rec) -> None:
         if isinstance(rec, Obs):
+            if self._kills and self._kill_due(rec.t):
+                logger.warning("robot %s: killed at sim t=%.2f s (run.kills)", self.rt.name, rec.t)
+                self._die()  # a fleet's agent: SIGKILL, nothing after it runs
+                return
             if self._end_at is not None:  # the simulator is still running: that End was forged
                 self._end_at = None
                 self.rt.reject_log.add(self.keys.end, "an end record followed by observations (not the simulator's)")
@@ -513,6 +535,15 @@ PRELOADED: dict[str, object] = {}
 """Scenarios already parsed by the process that forked this one (``agent/zygote.py``), by path."""
 
 
+def _sigkill_self() -> None:
+    """The scenario's kill of this robot (``run.kills``): SIGKILL, as an operator's ``kill -9``
+    or a power cut: no closing account, no goodbye; the transport closes with the process and
+    the robot's liveliness token goes (docs/reference/faults.md, "A kill declared in the scenario")."""
+    for h in logging.getLogger().handlers:  # the warning above reaches the robot's log first
+        h.flush()
+    os.kill(os.getpid(), signal.SIGKILL)
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="copath agent", description="Run one robot of a copath run.")
     p.add_argument("--run-id", required=True)
@@ -535,6 +566,10 @@ def main(argv: list[str] | None = None) -> int:
 
             if (why := problem(scenario, args.robot)) is not None:
                 raise ConfigError(why)
+            if any(k.robot == args.robot for k in scenario.run.kills):
+                raise ConfigError(f"run.kills names robot {args.robot!r}, whose agent drives it over ROS 2 itself "
+                                  "(--io ros2): a declared kill applies to agents over Zenoh only; kill the process "
+                                  "yourself, or leave the robot out of run.kills")
         conf = dataclasses.replace(session_config_from_args(args), lease_ms=round(1e3 * scenario.run.lease_s))
         runtime = RobotRuntime(scenario, args.robot, keys)  # builds the controller (and solvers) once
     except (ConfigError, ValueError) as exc:
@@ -554,7 +589,7 @@ def main(argv: list[str] | None = None) -> int:
 
                 run_with_ros2(runtime, keys, link, scenario.run.clock)
             else:
-                AgentNode(runtime, keys, link, scenario.run.clock).run()
+                AgentNode(runtime, keys, link, scenario.run.clock, die=_sigkill_self).run()
         except AccessDenied as exc:
             print(f"copath agent: {exc}", file=sys.stderr)
             return 2

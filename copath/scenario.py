@@ -11,7 +11,8 @@ The TOML layout (every table optional unless said)::
     [run]       duration_s, dt, clock ("lockstep" | "realtime"), settle_s, seed,
                 tick_timeout_s, rate_hz (realtime controller rate; default 1/dt),
                 until, secure, on_robot_failure, watchdog_s, command_timeout_s, lease_s, liveliness_grace_s,
-                cut_off ("hold" | "drive"; docs/reference/faults.md)
+                cut_off ("hold" | "drive"; docs/reference/faults.md),
+                kills = [{robot, at_s}] (a robot's process killed, as with SIGKILL)
     [network]   delay_ms, jitter_ms, loss, burst_p_gb, burst_p_bg, burst_loss,
                 range_m (0 = fixed graph from robots.neighbours),
                 partitions = [{links = [["r1", "r2"]], start_s, end_s}],
@@ -51,6 +52,7 @@ import math
 import pathlib
 import re
 import tomllib
+import dataclasses
 from dataclasses import dataclass, field
 from typing import Any, Callable, Mapping
 
@@ -66,6 +68,7 @@ from .grading import Target, parse_targets
 __all__ = [
     "Scenario",
     "RunConfig",
+    "Kill",
     "NetworkConfig",
     "NoiseConfig",
     "SensorConfig",
@@ -86,6 +89,18 @@ CUT_OFF_RULES = ("hold", "drive")
 _ID_RE = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]*")
 _CONTROLLER_RE = re.compile(r"[A-Za-z_][\w.-]*|[A-Za-z_][\w.]*:[A-Za-z_]\w*")
 _EXPERIMENT_RE = re.compile(r"e[4-6]\.[0-9]+")
+
+
+@dataclass(frozen=True)
+class Kill:
+    """A robot's process killed during the run, as with SIGKILL (docs/reference/faults.md, "A
+    kill declared in the scenario"): it answers no observation from the first at or after
+    ``at_s`` on, its liveliness token goes, and ``run.on_robot_failure`` applies."""
+
+    robot: str
+    """The killed robot's name."""
+    at_s: float
+    """When [s] (> 0, simulated time)."""
 
 
 @dataclass(frozen=True)
@@ -148,6 +163,10 @@ class RunConfig:
     be seen, nor coordinate); ``drive`` lets its controller drive on, blind, and the filters
     forget it after ``safety.max_age_s`` (docs/reference/faults.md, "Gone quiet"; docs/reference/safety.md).
     A robot's controller may handle being cut off itself (roles, docs/reference/ambiguities.md, robot lost in role assignment (A38))."""
+    kills: tuple[Kill, ...] = ()
+    """Robot processes killed during the run ``[{robot, at_s}]``, as with SIGKILL; a robot
+    restarted under ``restart`` may be killed again at a later time (docs/reference/faults.md, "A
+    kill declared in the scenario")."""
 
     def __post_init__(self) -> None:
         require(self.duration_s > 0, "run.duration_s", self.duration_s, "must be > 0")
@@ -434,6 +453,17 @@ def _silence(p: Any, where: str) -> Silence:
     return Silence(p["robot"], start, end)
 
 
+def _kill(p: Any, where: str) -> Kill:
+    require(isinstance(p, dict), where, p, "expected a table {robot, at_s}")
+    for k in p:
+        require(k in ("robot", "at_s"), f"{where}.{k}", p[k], "allowed keys: robot, at_s")
+    require(isinstance(p.get("robot"), str), f"{where}.robot", p.get("robot"), "expected a robot name")
+    at = p.get("at_s")
+    require(isinstance(at, (int, float)) and not isinstance(at, bool) and math.isfinite(at) and at > 0,
+            f"{where}.at_s", at, "expected a time [s] > 0")
+    return Kill(p["robot"], float(at))
+
+
 def _obstacle(o: Any, where: str) -> ObstacleSpec:
     require(isinstance(o, dict), where, o, "expected a table {vertices, velocity, known}")
     for k in o:
@@ -529,7 +559,15 @@ def parse_scenario(raw: Mapping[str, Any], base_dir: pathlib.Path | None = None,
     errs.check(experiment is None or (isinstance(experiment, str) and _EXPERIMENT_RE.fullmatch(experiment) is not None),
                "experiment", experiment,
                "expected a dissertation experiment id in lower case, e.g. 'e5.5' (or leave the key out)")
-    run = errs.take(lambda: from_table(RunConfig, raw.get("run"), "run"))
+    run_tab = dict(raw.get("run") or {})
+    kills_raw = run_tab.pop("kills", []) or []
+    if not errs.check(isinstance(kills_raw, list), "run.kills", kills_raw, "expected a list of tables {robot, at_s}"):
+        kills_raw = []
+    kills = [k for k in (errs.take(lambda: _kill(k, f"run.kills[{i}]")) for i, k in enumerate(kills_raw))
+             if k is not None]
+    run = errs.take(lambda: from_table(RunConfig, run_tab, "run"))
+    if run is not None:
+        run = dataclasses.replace(run, kills=tuple(kills))
     net_tab = dict(raw.get("network") or {})
     parts = [p for p in (errs.take(lambda: _partition(p, f"network.partitions[{i}]"))
                          for i, p in enumerate(net_tab.pop("partitions", []) or [])) if p is not None]
@@ -574,6 +612,11 @@ def parse_scenario(raw: Mapping[str, Any], base_dir: pathlib.Path | None = None,
 
     for i, sil in enumerate(network.silence):
         errs.check(sil.robot in order, f"network.silence[{i}].robot", sil.robot, "must name a robot of this scenario")
+    for i, kill in enumerate(kills):
+        if errs.check(kill.robot in order, f"run.kills[{i}].robot", kill.robot,
+                      f"must name a robot of this scenario ({', '.join(order)})"):
+            errs.check(sum(k.robot == kill.robot and abs(k.at_s - kill.at_s) < 1e-9 for k in kills) == 1,
+                       f"run.kills[{i}]", {"robot": kill.robot, "at_s": kill.at_s}, "is declared twice")
 
     obstacles = [o for o in (errs.take(lambda: _obstacle(o, f"obstacles[{i}]"))
                              for i, o in enumerate(raw.get("obstacles") or [])) if o is not None]

@@ -171,9 +171,10 @@ def _table(rows: list[FieldInfo], prefix: str = "") -> str:
 
 # --------------------------------------------------------------------- the blocks
 def _run() -> str:
-    from copath.scenario import RunConfig
+    from copath.scenario import Kill, RunConfig
 
-    return _table(fields_of(RunConfig))
+    return "\n\n".join([_table(fields_of(RunConfig)),
+                        "Each entry of `kills` (a list of tables):\n\n" + _table(fields_of(Kill))])
 
 
 def _network() -> str:

@@ -52,6 +52,13 @@ class RunResult:
     """The simulator's verdict (False: it ended the run, e.g. a lost robot under ``fail``)."""
 
 
+RESTART_AFTER_S = 1.0
+"""Under ``run.on_robot_failure = "restart"``, a robot killed by the scenario (``run.kills``) is
+started again this long after the kill in one process [s] (chosen: a fleet's supervisor forks it
+from the zygote and it rejoins within about a second, docs/reference/faults.md; the chaos soak's
+in-process form uses the same)."""
+
+
 def run_scenario(scenario: Scenario, duration_s: float | None = None, run_id: str | None = None,
                  on_tick: Callable[[float, int], None] | None = None,
                  kills: Mapping[str, float] | None = None,
@@ -61,7 +68,7 @@ def run_scenario(scenario: Scenario, duration_s: float | None = None, run_id: st
 
     ``on_tick(t, n)`` is called after each tick with the sim time reached [s] and the
     number of messages published so far (progress display). ``kills`` ({robot: t [s]},
-    or {robot: [t, ...]} for several):
+    or {robot: [t, ...]} for several; added to the scenario's own ``run.kills``):
     the robot's process goes away at the first tick at or after t, as with SIGKILL (its
     link closes: its liveliness token disappears and it answers no more observations; the
     run's ``on_robot_failure`` applies). ``restarts`` ({robot: t}): a new process of that
@@ -96,7 +103,13 @@ def run_scenario(scenario: Scenario, duration_s: float | None = None, run_id: st
     def _times(v) -> list[float]:  # one time, or several (a robot killed and restarted again and again)
         return [float(x) for x in v] if isinstance(v, (list, tuple)) else [float(v)]
 
-    faults = sorted([(round(t / dt), 0, n) for n, ts in (kills or {}).items() for t in _times(ts)]
+    # the scenario's own kills (run.kills) and the caller's, as one schedule; under "restart" a
+    # declared kill's robot comes back RESTART_AFTER_S later, as the fleet's supervisor restarts it
+    declared = [(k.robot, k.at_s) for k in scenario.run.kills]
+    back = [(n, t + RESTART_AFTER_S) for n, t in declared] if scenario.run.on_robot_failure == "restart" else []
+    declared += [(n, t) for n, ts in (kills or {}).items() for t in _times(ts)]
+    faults = sorted([(round(t / dt), 0, n) for n, t in dict.fromkeys(declared)]
+                    + [(round(t / dt), 1, n) for n, t in back]
                     + [(round(t / dt), 1, n) for n, ts in (restarts or {}).items() for t in _times(ts)])
     current = dict(agents)  # each robot's newest process
     for _, _, n in faults:

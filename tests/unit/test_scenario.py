@@ -191,3 +191,27 @@ def test_key_lines_skip_the_rows_of_a_multi_line_array():
     lines = key_lines(text)
     assert lines["paths.s.waypoints"] == 3 and lines["paths.s.closed"] == 8 and lines["run.dt"] == 10
     assert not any(k.startswith("0") for k in lines)
+
+
+def test_run_kills_are_checked_at_the_edge_naming_key_value_and_what_is_allowed():
+    """``run.kills`` (docs/reference/faults.md, "A kill declared in the scenario"): each a table
+    {robot, at_s} naming a robot of the scenario, at a time > 0, once."""
+    import tomllib  # noqa: PLC0415
+
+    from copath.scenario import ConfigError, Kill, parse_scenario  # noqa: PLC0415
+    from tests.conftest import config  # noqa: PLC0415
+
+    raw = tomllib.loads(config("e5.4-six-robots-lemniscate").read_text())
+    raw["run"]["kills"] = [{"robot": "r1", "at_s": 10}, {"robot": "r1", "at_s": 20.5}]
+    assert parse_scenario(raw).run.kills == (Kill("r1", 10.0), Kill("r1", 20.5))
+    for bad, said in [([{"robot": "r9", "at_s": 10}], "run.kills[0].robot = 'r9' is not allowed; must name a robot"),
+                      ([{"robot": "r1", "at_s": 0}], "run.kills[0].at_s = 0 is not allowed; expected a time [s] > 0"),
+                      ([{"robot": "r1", "at_s": True}], "run.kills[0].at_s = True is not allowed"),
+                      ([{"robot": "r1"}], "run.kills[0].at_s = None is not allowed"),
+                      ([{"robot": "r1", "at_s": 5, "signal": 9}], "run.kills[0].signal = 9 is not allowed; allowed keys: robot, at_s"),
+                      ("r1", "run.kills = 'r1' is not allowed; expected a list of tables {robot, at_s}"),
+                      ([{"robot": "r1", "at_s": 5}, {"robot": "r1", "at_s": 5.0}], "is declared twice")]:
+        raw["run"]["kills"] = bad
+        with pytest.raises(ConfigError) as err:
+            parse_scenario(raw)
+        assert said in str(err.value), (bad, str(err.value))

@@ -34,10 +34,10 @@ def test_the_victim_s_own_detours_and_those_before_the_fault_are_not_passes():
 
 
 def _row(passes):
-    from orchestrator.studies.bench.failure_sweep import _recoord_text, _slow_without_failure, _worst_recoord  # noqa: PLC0415
+    from orchestrator.studies.bench.failure_sweep import _recoord_text, slow_without_failure, worst_recoord  # noqa: PLC0415
 
-    row = {"passes": passes, "recoord_after_pass_max_s": _worst_recoord(passes),
-           "recoord_slow_without_failure_too": _slow_without_failure(passes)}
+    row = {"passes": passes, "recoord_after_pass_max_s": worst_recoord(passes),
+           "recoord_slow_without_failure_too": slow_without_failure(passes)}
     return row, _recoord_text(row)
 
 

@@ -209,35 +209,35 @@ def run_case(scen: Scenario, fault: str, victim: str, t_fault: float, duration_s
             "tasks": None if f.get("tasks_total") is None else f"{f['tasks_completed']}/{f['tasks_total']}",
             "progress": share, "progress_min": min(share.values()) if share else None,
             "detours": sum(r.get("detours") or 0 for r in res.metrics["robots"].values()),
-            "passes": passed, "recoord_after_pass_max_s": _worst_recoord(passed),
-            "recoord_slow_without_failure_too": _slow_without_failure(passed)}
+            "passes": passed, "recoord_after_pass_max_s": worst_recoord(passed),
+            "recoord_slow_without_failure_too": slow_without_failure(passed)}
 
 
-def _worst_recoord(passed: list[dict[str, Any]] | None) -> float | None:
+def worst_recoord(passed: list[dict[str, Any]] | None) -> float | None:
     """The slowest re-coordination over the passes that ended [s]; None where coordination is
     not graded, where no pass ended (the live robots never got past) or where one never
     re-coordinated: a run that does not meet the goal is not given a figure that looks like one.
     A pass still under way at the run's end (the next lap's, in a column that goes round a held
-    robot on every lap), or one that ended too close to it (:func:`_graded`), is left out."""
-    ended = [p for p in (passed or ()) if _graded(p)]
+    robot on every lap), or one that ended too close to it (:func:`graded`), is left out."""
+    ended = [p for p in (passed or ()) if graded(p)]
     if not ended or any(p["recoord_s"] is None for p in ended):
         return None
     return max(p["recoord_s"] for p in ended)
 
 
-def _slow_without_failure(passed: list[dict[str, Any]] | None) -> bool | None:
+def slow_without_failure(passed: list[dict[str, Any]] | None) -> bool | None:
     """Whether every graded pass that missed :data:`RECOORD_GOAL_S` missed it in the same run
     without the failure too, from the same instant (its team not back under 0.05 m within 20 s
     of when the pass ended: the scenario's own coordination, not the failure, is what is slow).
     None where no pass missed the goal or the run without the failure was not compared."""
-    slow = [p for p in (passed or ()) if _graded(p) and (p["recoord_s"] is None or p["recoord_s"] > RECOORD_GOAL_S)]
+    slow = [p for p in (passed or ()) if graded(p) and (p["recoord_s"] is None or p["recoord_s"] > RECOORD_GOAL_S)]
     if not slow or any("recoord_without_failure_s" not in p for p in slow):
         return None
     return all(p["recoord_without_failure_s"] is None or p["recoord_without_failure_s"] > RECOORD_GOAL_S
                for p in slow)
 
 
-def _graded(p: dict[str, Any]) -> bool:
+def graded(p: dict[str, Any]) -> bool:
     """A pass that can be graded: it ended, and it re-coordinated or had :data:`RECOORD_GOAL_S`
     to do so before the next pass or the run's end."""
     return p["end_s"] is not None and (p["recoord_s"] is not None or p["window_s"] >= RECOORD_GOAL_S - 1e-9)
@@ -254,7 +254,7 @@ def _unpassed(row: dict[str, Any]) -> bool:
     """Coordination is graded but no pass can be: none ended, or none ended long enough before
     the run did and re-coordinated (a run too short for the goal, or robots stuck at the lost
     one; their progress says which)."""
-    return row["passes"] is not None and not any(_graded(p) for p in row["passes"])
+    return row["passes"] is not None and not any(graded(p) for p in row["passes"])
 
 
 def _recoord_text(row: dict[str, Any]) -> str:
@@ -263,14 +263,14 @@ def _recoord_text(row: dict[str, Any]) -> str:
         return ""
     n = len(row["passes"])
     if row["recoord_after_pass_max_s"] is None:
-        if any(_graded(p) for p in row["passes"]):
+        if any(graded(p) for p in row["passes"]):
             return f"  passes {n}  recoord never"
         ended = any(p["end_s"] is not None for p in row["passes"])
         return f"  passes {n}  recoord " + ("not graded: the run ended within 20 s of the pass" if ended
                                             else "not graded: still passing at the end")
     text = f"  passes {n}  recoord <= {row['recoord_after_pass_max_s']:.1f} s"
     if row.get("recoord_slow_without_failure_too"):
-        free = [p.get("recoord_without_failure_s") for p in row["passes"] if _graded(p)]
+        free = [p.get("recoord_without_failure_s") for p in row["passes"] if graded(p)]
         text += " (without the failure: " + ("not by the run's end" if None in free else f"{max(free):.1f} s") + ")"
     return text
 

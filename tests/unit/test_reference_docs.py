@@ -15,7 +15,7 @@ from copath.models import MODEL_TYPES
 from copath.paths import PATH_TYPES, Path, PathTable
 from copath.ros2.config import RobotIO, WorldConfig
 from copath.safety import SafetyConfig
-from copath.scenario import (_ROBOT_KEYS, _TOP_KEYS, NetworkConfig, NoiseConfig, ObstacleSpec, Partition, RunConfig,
+from copath.scenario import (_ROBOT_KEYS, _TOP_KEYS, Kill, NetworkConfig, NoiseConfig, ObstacleSpec, Partition, RunConfig,
                              SensorConfig, Silence, parse_scenario)
 from copath.grading import AT_MOST, TARGETS
 from orchestrator import reference
@@ -51,7 +51,7 @@ def test_every_generated_block_is_on_a_page():
 
 
 @pytest.mark.parametrize("cls, section", [
-    (RunConfig, "[run]"), (NetworkConfig, "[network]"), (Partition, "[network]"), (Silence, "[network]"),
+    (RunConfig, "[run]"), (Kill, "[run]"), (NetworkConfig, "[network]"), (Partition, "[network]"), (Silence, "[network]"),
     (NoiseConfig, "[noise]"), (SensorConfig, "[sensors]"), (EstimatorConfig, "[sensing]"),
     (SensorProfile, "[sensing]"), (ObstacleSpec, "[[obstacles]]"), (MetricsConfig, "[metrics]"),
     (SafetyConfig, "[safety]"), (WorldConfig, "[world]"), *[(cls, "[[robots]]") for cls in MODEL_TYPES.values()],
@@ -72,7 +72,7 @@ def test_every_key_of_every_table_is_documented_with_its_default(cls, section):
 
 def test_no_documented_key_is_unknown():
     text = (DOCS / "scenarios.md").read_text()
-    known = {f.name for cls in (RunConfig, NetworkConfig, Partition, Silence, NoiseConfig, SensorConfig,
+    known = {f.name for cls in (RunConfig, Kill, NetworkConfig, Partition, Silence, NoiseConfig, SensorConfig,
                                 EstimatorConfig, SensorProfile, ObstacleSpec, MetricsConfig, SafetyConfig,
                                 WorldConfig, RobotIO, *MODEL_TYPES.values()) for f in dataclasses.fields(cls)}
     known |= set(_TOP_KEYS) | set(_ROBOT_KEYS) | set(TARGETS) | {"profile", "estimator", "solve_time_s", "robots",

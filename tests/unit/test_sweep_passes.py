@@ -59,3 +59,19 @@ def test_a_slow_pass_is_told_apart_when_the_run_without_the_failure_is_no_faster
     assert _row([{"end_s": 20.0, "recoord_s": 5.0, "window_s": 30.0, "recoord_without_failure_s": None}])[0][
         "recoord_slow_without_failure_too"] is None
     assert _row([{"end_s": 20.0, "recoord_s": 25.0, "window_s": 30.0}])[0]["recoord_slow_without_failure_too"] is None
+
+
+def test_a_re_coordination_found_only_after_the_next_pass_began_is_that_pass_s():
+    """E5.4 with r1 killed at 32 s: the first lap's pass ends at 56.0 s and the next begins 3.9 s
+    later; the team is under 0.05 m again only at 78.4 s, inside the next pass. The documented
+    rule (docs/reference/faults.md: a pass that ended less than 20 s before the next and is not
+    back yet is not graded) leaves the first pass ungraded instead of charging it 22.4 s."""
+    from orchestrator.studies.bench.failure_sweep import _within, graded  # noqa: PLC0415
+
+    assert _within(22.4, 3.9, 59.9) is None
+    assert not graded({"end_s": 56.0, "recoord_s": _within(22.4, 3.9, 59.9), "window_s": 3.9})
+    assert _within(3.0, 3.9, 59.9) == 3.0  # back before the next pass: its own figure
+    assert _within(22.4, 25.0, None) == 22.4  # the last pass: up to the run's end
+    assert _within(None, 30.0, 90.0) is None
+    # a window of 20 s or more without coming back is a miss, as before
+    assert graded({"end_s": 40.0, "recoord_s": _within(24.0, 21.0, 61.0), "window_s": 21.0})

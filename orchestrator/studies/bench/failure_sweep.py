@@ -153,12 +153,24 @@ def passes(res, scen: Scenario, victim: str, t_fault: float, ser=None,
         nxt = episodes[k + 1][0] if k + 1 < len(episodes) else None
         window = None if end is None else float((ser.t[-1] if nxt is None else nxt) - end)
         row = {"end_s": None if end is None else round(end, 2),
-               "recoord_s": None if end is None else held_below(ser.t, ser.coordination_error, end, nxt),
+               "recoord_s": None if end is None else _within(held_below(ser.t, ser.coordination_error, end, nxt),
+                                                             window, nxt),
                "window_s": None if window is None else round(window, 2)}
         if free_coord is not None:
-            row["recoord_without_failure_s"] = None if end is None else held_below(*free_coord, end, nxt)
+            row["recoord_without_failure_s"] = None if end is None else _within(held_below(*free_coord, end, nxt),
+                                                                                window, nxt)
         out.append(row)
     return out
+
+
+def _within(recoord: float | None, window: float | None, nxt: float | None) -> float | None:
+    """A re-coordination of a pass, or None when it came only after the next pass had begun:
+    that one is the next pass's to grade (:func:`held_below` lets a stretch below that began
+    before the next fault run on into it, and finds later stretches too; a pass whose team is not
+    back when the next begins is not back within its window)."""
+    if recoord is None or nxt is None or window is None:
+        return recoord
+    return recoord if recoord <= window + 1e-9 else None
 
 
 class Baseline(NamedTuple):

@@ -46,13 +46,13 @@ from __future__ import annotations
 
 import copy
 import csv
+import dataclasses
 import itertools
 import json
 import math
 import pathlib
 import re
 import tomllib
-import dataclasses
 from dataclasses import dataclass, field
 from typing import Any, Callable, Mapping
 

@@ -23,7 +23,7 @@ def test_the_dmpc_team_goes_round_the_known_box_and_drives_through_it_without_th
     assert row["goals_met"] and out["cases_missing_a_goal"] == 0
     assert row["collisions"] == 0 and row["min_obstacle_clearance_m"] > 0.05  # 0.070 m measured
     assert set(row["progress"]) == {"r1", "r2", "r3"} and row["progress_min"] >= 0.9
-    assert row["detours"] == 4  # r1 and r3 round the box on each side of their lanes; r2's lane is free
+    assert row["detours"] == 4  # r1 and r3 twice each (the box is between their lanes); r2's lane is free
     off = _cases(capsys, "--only", "e5.2-dmpc-obstacle", "--set", "safety.detours=false")["cases"][0]
     assert off["collisions"] > 0 and off["min_obstacle_clearance_m"] < 0 and off["detours"] == 0
     assert not off["goals_met"]

@@ -72,17 +72,11 @@ def run_case(case: Case, scen: Scenario) -> dict[str, Any]:
     """The case and the same run without its block, graded from the truth."""
     duration = float(scen.run.duration_s)
     victim, t_fault = _fault(scen)
-    free = run_scenario(_without(scen), duration_s=duration, run_id="blocked-free")
-    fser = truth_series(free.trace, scen)
-    base = Baseline(progress(free, scen, fser), *((fser.t, fser.coordination_error)
-                                                  if fser is not None and fser.coordination_error is not None
-                                                  else (None, None)))
+    base = Baseline.of(run_scenario(_without(scen), duration_s=duration, run_id="blocked-free"), scen)
     res = run_scenario(scen, duration_s=duration, run_id="blocked")
     ser = truth_series(res.trace, scen)
-    passed = passes(res, scen, victim, t_fault, ser, None if base.coord is None else (base.t, base.coord))
-    got = progress(res, scen, ser)
-    share = {n: round(got[n] / base.progress[n], 4) for n in got
-             if n != victim and n in base.progress and base.progress[n] > 1e-6}
+    passed = passes(res, scen, victim, t_fault, ser, base.coordination)
+    share = base.shares(progress(res, scen, ser), victim)
     f, robots = res.metrics["fleet"], res.metrics["robots"]
     live = [n for n in robots if n != victim]
     row = {"scenario": scen.id, "what": case.what, "duration_s": duration,

@@ -391,18 +391,26 @@ def grade(records, scenario: Scenario, run_id: str, faults: list[Fault], metrics
     return {"faults": rows, "totals": totals}
 
 
-def held_below(t: np.ndarray, coord: np.ndarray, t_back: float, t_next: float | None = None) -> float | None:
+def held_below(t: np.ndarray, coord: np.ndarray, t_back: float, t_next: float | None = None,
+               later: bool = True) -> float | None:
     """Seconds from ``t_back`` to the first instant from which the coordination error stays
     below :data:`COORD_TOL_M` for :data:`HOLD_S`, or until the next fault begins (``t_next``)
     or the run ends, whichever comes first; None if never. An error that builds up after the
     next fault has begun is that fault's, graded in its own row (docs/journal/faults.md, "A
-    window ends at the next fault"). NaN (no live pair) counts as below."""
+    window ends at the next fault"). NaN (no live pair) counts as below.
+
+    ``later``: a stretch that begins after the next fault has begun still counts (the chaos
+    soak: the next fault only ever ends a stretch early); False, it is the next fault's and this
+    one is None (the failure sweep's passes, docs/reference/faults.md: a pass whose team is not
+    back when the next pass begins is not back within its window)."""
     below = ~(coord >= COORD_TOL_M)  # NaN: no pair to grade
     k = int(np.searchsorted(t, t_back - 1e-9))
     nxt = len(t) if t_next is None else int(np.searchsorted(t, t_next - 1e-9))  # first instant of the next fault
     bad = np.nonzero(~below[k:])[0] + k  # the instants at or over the tolerance from t_back on
     start = k  # each stretch below begins at t_back or just after an instant over
     for b in (*bad.tolist(), len(t)):
+        if not later and k < nxt < start:
+            return None
         if b > start and (b == len(t) or t[b] - t[start] >= HOLD_S - 1e-9 or start < nxt <= b):
             return round(float(t[start] - t_back), 2)
         start = b + 1

@@ -152,25 +152,14 @@ def passes(res, scen: Scenario, victim: str, t_fault: float, ser=None,
     for k, (_, end) in enumerate(episodes):
         nxt = episodes[k + 1][0] if k + 1 < len(episodes) else None
         window = None if end is None else float((ser.t[-1] if nxt is None else nxt) - end)
+        # a team back only after the next pass began is that pass's to grade (later=False)
         row = {"end_s": None if end is None else round(end, 2),
-               "recoord_s": None if end is None else _within(held_below(ser.t, ser.coordination_error, end, nxt),
-                                                             window, nxt),
+               "recoord_s": None if end is None else held_below(ser.t, ser.coordination_error, end, nxt, later=False),
                "window_s": None if window is None else round(window, 2)}
         if free_coord is not None:
-            row["recoord_without_failure_s"] = None if end is None else _within(held_below(*free_coord, end, nxt),
-                                                                                window, nxt)
+            row["recoord_without_failure_s"] = None if end is None else held_below(*free_coord, end, nxt, later=False)
         out.append(row)
     return out
-
-
-def _within(recoord: float | None, window: float | None, nxt: float | None) -> float | None:
-    """A re-coordination of a pass, or None when it came only after the next pass had begun:
-    that one is the next pass's to grade (:func:`held_below` lets a stretch below that began
-    before the next fault run on into it, and finds later stretches too; a pass whose team is not
-    back when the next begins is not back within its window)."""
-    if recoord is None or nxt is None or window is None:
-        return recoord
-    return recoord if recoord <= window + 1e-9 else None
 
 
 class Baseline(NamedTuple):
@@ -182,16 +171,31 @@ class Baseline(NamedTuple):
     t: np.ndarray | None = None
     coord: np.ndarray | None = None
 
+    @classmethod
+    def of(cls, res, scen: Scenario) -> "Baseline":
+        """The baseline of a finished run ``res`` of ``scen``."""
+        ser = truth_series(res.trace, scen)
+        if ser is None or ser.coordination_error is None:
+            return cls(progress(res, scen, ser))
+        return cls(progress(res, scen, ser), np.asarray(ser.t), np.asarray(ser.coordination_error))
+
+    @property
+    def coordination(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """(t, coordination error) for :func:`passes`, None where not graded."""
+        return None if self.coord is None else (self.t, self.coord)
+
+    def shares(self, got: dict[str, float], lost: str) -> dict[str, float]:
+        """Each live robot's progress ``got`` [m] as a share of its progress here (``lost``: the
+        robot left out)."""
+        base = self.progress
+        return {n: round(got[n] / base[n], 4) for n in got if n != lost and n in base and base[n] > 1e-6}
+
 
 def baseline(scen: Scenario, duration_s: float) -> Baseline:
     """The run of ``scen`` without any failure (:class:`Baseline`), with the sweep's settings."""
     scen = dataclasses.replace(scen, run=dataclasses.replace(scen.run, on_robot_failure="continue"),
                                safety=dataclasses.replace(scen.safety, detours=True))
-    res = run_scenario(scen, duration_s=duration_s, run_id="sweep-base")
-    ser = truth_series(res.trace, scen)
-    if ser is None or ser.coordination_error is None:
-        return Baseline(progress(res, scen, ser))
-    return Baseline(progress(res, scen, ser), np.asarray(ser.t), np.asarray(ser.coordination_error))
+    return Baseline.of(run_scenario(scen, duration_s=duration_s, run_id="sweep-base"), scen)
 
 
 def run_case(scen: Scenario, fault: str, victim: str, t_fault: float, duration_s: float,
@@ -209,12 +213,8 @@ def run_case(scen: Scenario, fault: str, victim: str, t_fault: float, duration_s
                        kills={victim: t_fault} if fault == "kill" else None)
     f = res.metrics["fleet"]
     ser = truth_series(res.trace, scen)  # once for both
-    passed = passes(res, scen, victim, t_fault, ser,
-                    None if free is None or free.coord is None else (free.t, free.coord))
-    share = None
-    if free is not None:
-        got, base = progress(res, scen, ser), free.progress
-        share = {n: round(got[n] / base[n], 4) for n in got if n != victim and n in base and base[n] > 1e-6}
+    passed = passes(res, scen, victim, t_fault, ser, None if free is None else free.coordination)
+    share = None if free is None else free.shares(progress(res, scen, ser), victim)
     return {"scenario": scen.id, "fault": fault, "robot": victim, "t_s": t_fault, "duration_s": duration_s,
             "collisions": f["collisions"], "min_separation_m": f["min_separation_m"],
             "coordination_error_max_m": f.get("coordination_error_max_m"),

@@ -71,7 +71,7 @@ class AgentNode:
         self.latest_obs: Obs | None = None
         self.peers: collections.deque = collections.deque()
         self.overheard: collections.deque = collections.deque()  # for the safety filter
-        self._awaits_overheard = runtime.awaits_overheard  # acknowledged plans: the barrier counts them too
+        self._awaits_overheard = runtime.awaits_overheard  # the filter overhears: the barrier counts them too
         self.started = threading.Event()
         self.ended = threading.Event()
         self.wall_t0 = 0.0

@@ -41,7 +41,7 @@ from copath.config import ConfigError
 from copath.control import Observation, RobotContext
 from copath.detour import DetourPlanner
 from copath.graph import stand_ins
-from copath.safety import acknowledged
+from copath.safety import awaits_overheard
 from copath.scenario import Scenario
 from copath.wire.keys import Keys
 from copath.wire.messages import Command, Estimate, Event, Obs, PeerEnvelope, Telemetry, to_plain
@@ -140,10 +140,11 @@ class RobotRuntime:
         self._joined = False
         self.received_from: dict[str, int] = {}
         """Peer envelopes that arrived from each sender, refused ones included (the lockstep barrier)."""
-        self.awaits_overheard = acknowledged(scenario.safety)
-        """Whether the lockstep barrier waits for every message overheard (acknowledged plans:
-        what the envelopes acknowledge depends on them, so a deterministic run must have them all;
-        the simulator's ``Obs.expect`` then counts every message of each sender)."""
+        self.awaits_overheard = awaits_overheard(scenario.safety)
+        """Whether the lockstep barrier waits for every message overheard (the safety filter
+        overhears: what it does depends on them, so a deterministic run must have them all; the
+        simulator's ``Obs.expect`` then counts every message of each sender;
+        :func:`copath.safety.awaits_overheard`)."""
         self.overheard_from: dict[str, int] = {}
         """Overheard envelopes that arrived from each sender (every key), refused ones included,
         counted while :attr:`awaits_overheard` (:meth:`missing`)."""

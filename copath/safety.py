@@ -145,7 +145,9 @@ class SafetyConfig:
     """A neighbour's position older than this is forgotten [s] (it left communication)."""
     overhear: bool = True
     """Fixed graphs: also read the position in the broadcasts of robots that are not graph
-    neighbours (the controller still hears only its neighbours)."""
+    neighbours (the controller still hears only its neighbours). Lockstep runs then wait for
+    every overheard message too (docs/reference/faults.md, "Overheard messages and the
+    lockstep barrier")."""
     use_ranges: bool = True
     """Add a barrier per range reading when the scenario has sensors."""
     slack_weight: float = 1.0e4
@@ -188,7 +190,7 @@ class SafetyConfig:
     acknowledge_plans: bool | Literal["while_held"] = False
     """Committed plans: every envelope acknowledges the plans its filter holds, and a robot keeps
     no plan older than every robot that may hold one has acknowledged (docs/reference/safety.md,
-    "Acknowledged plans"; lockstep runs then also wait for every overheard message). Off by
+    "Acknowledged plans"). Off by
     default (chosen: on, E5.4 with r4 killed at 30 s made 86 % of its progress without the kill
     instead of 91 %; docs/journal/faults.md, "Acknowledged plans"). ``"while_held"``: the
     envelopes acknowledge as with ``true``, and a robot leaves out unacknowledged plans only
@@ -624,6 +626,18 @@ _COS_DIR = math.cos(math.pi / 6)  # |x| <= max_k c_k^T x / cos(pi / 6) for the s
 
 _OCTAGON = np.array([[math.cos(a), math.sin(a)] for a in np.arange(4) * math.pi / 4])
 _COS8 = math.cos(math.pi / 8)
+
+
+def awaits_overheard(cfg: SafetyConfig) -> bool:
+    """Whether a lockstep robot waits for every message it overhears, not only its
+    neighbours' (``Obs.expect`` then counts every message of each sender): whenever the
+    safety filter is fed by overhearing. What the filter keeps out of, what the envelopes
+    acknowledge (:func:`acknowledged`) and when a robot finds another quiet or itself cut
+    off all depend on when an overheard envelope arrived; a barrier that waited only for the
+    neighbours let one arrive a tick late now and then, and a lockstep run over Zenoh then
+    left the in-process run (E5.4 with r1 quiet: r1 found itself cut off a tick later and
+    held 2 cm further on; docs/reference/faults.md, "Overheard messages and the lockstep barrier")."""
+    return bool(cfg.enabled and cfg.overhear)
 
 
 def acknowledged(cfg: SafetyConfig) -> bool:

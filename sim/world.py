@@ -19,7 +19,7 @@ import math
 import numpy as np
 
 from copath.models import OmniModel, UnicycleModel, integrate_body_velocities, wheel_matrix
-from copath.safety import acknowledged
+from copath.safety import awaits_overheard
 from copath.scenario import Scenario
 from copath.wire.messages import Obs, Truth
 
@@ -40,8 +40,8 @@ class World:
         self.scenario = scenario
         self.names = list(scenario.robot_names)
         self.models = {r.name: r.model for r in scenario.robots}
-        self._every_message = acknowledged(scenario.safety)
-        """The lockstep barrier counts every message of each sender (acknowledged plans)."""
+        self._every_message = awaits_overheard(scenario.safety)
+        """The lockstep barrier counts every message of each sender (the safety filter overhears)."""
         n = len(self.names)
         self._P = np.array([r.pose for r in scenario.robots], dtype=float).reshape(n, 3)
         self.poses = {name: self._P[i] for i, name in enumerate(self.names)}  # row views
@@ -150,7 +150,7 @@ class World:
             ranges = [float(v) for v in r]
         expect = None
         if sent is not None:
-            if self._every_message:  # acknowledged plans: every message each robot sent, overheard
+            if self._every_message:  # the filter overhears: every message each robot sent
                 expect = {s: sum(int(v) for v in c.values()) for s, c in sent.items() if s != name}
             else:
                 expect = {s: int(c.get("*", 0)) + int(c.get(name, 0)) for s, c in sent.items() if s != name}

@@ -6,7 +6,7 @@ A router link that resets drops what was in flight on it; before the write-off, 
 barrier stayed one message short and each tick waited its full timeout (5 s a tick over
 Zenoh; ``tests/faults/test_netns.py`` is that case across two hosts). Here the in-process bus
 drops chosen messages of r3, so the count is exact: one lost message is one barrier timeout at
-each robot that listens to r3, whatever the run's length, and a written-off message that turns
+each robot that listens to r3 or overhears it, whatever the run's length, and a written-off message that turns
 up later is not counted again (it would hide the next loss).
 
 In one process the robots step in their order, so a robot already holds the messages of this
@@ -63,12 +63,17 @@ def _run(monkeypatch, scenario, duration_s: float, lost, late=None):
     return inprocess.run_scenario(scenario, duration_s=duration_s)
 
 
+@pytest.mark.parametrize("overhear", [True, False], ids=["overheard", "neighbours-only"])
 @pytest.mark.parametrize("duration_s", [3.0, 6.0])
-def test_one_lost_message_costs_each_listener_one_barrier_timeout_however_long_the_run(monkeypatch, duration_s):
-    sc = load_scenario(config("e5.5-"))
-    assert sc.robot_names[-1] == "r3"
-    listeners = sorted(n for n in sc.robot_names if "r3" in sc.robot(n).neighbours)
-    assert listeners == ["r2"]
+def test_one_lost_message_costs_each_listener_one_barrier_timeout_however_long_the_run(monkeypatch, duration_s,
+                                                                                       overhear):
+    """With the safety filter overhearing (E5.5's default) every robot waits for every message
+    r3 sent (docs/reference/faults.md, "Overheard messages and the lockstep barrier"); without,
+    only r3's graph neighbour r2 does."""
+    sc = load_scenario(config("e5.5-")).with_overrides(safety={"overhear": overhear})
+    assert sc.robot_names[-1] == "r3" and sc.safety.enabled
+    listeners = sorted(n for n in sc.robot_names if n != "r3" and (overhear or "r3" in sc.robot(n).neighbours))
+    assert listeners == (["r1", "r2"] if overhear else ["r2"])
     res = _run(monkeypatch, sc, duration_s, lost={1.0})
     acc = _accounts(res)
     for n in listeners:  # before the write-off: one timeout per tick after 1 s (20 and 50)
@@ -85,8 +90,9 @@ def test_a_written_off_message_that_arrives_late_does_not_hide_the_next_loss(mon
     # r3's message of 1.0 s turns up at 1.5 s; its message of 2.0 s is lost for good: counting
     # the late one would make the barrier of 2.1 s believe the lost one had arrived
     res = _run(monkeypatch, sc, 3.0, lost={1.0, 2.0}, late={1.0: 1.5})
-    r2 = _accounts(res)["r2"]  # r3's one listener
-    assert r2.get("barrier_timeouts") == 2 and r2.get("barrier_written_off") == 2, r2
+    acc = _accounts(res)
+    for n in ("r1", "r2"):  # r3's listener r2, and r1, which overhears it for its filter
+        assert acc[n].get("barrier_timeouts") == 2 and acc[n].get("barrier_written_off") == 2, (n, acc[n])
 
 
 def test_with_acknowledged_plans_the_barrier_counts_overheard_messages_and_writes_them_off_too(monkeypatch):

@@ -1,0 +1,57 @@
+"""The lockstep barrier (docs/reference/faults.md, "Overheard messages and the lockstep barrier"):
+with the safety filter overhearing, a robot waits for every message each robot sent, its
+neighbours' and the others', before it steps; without overhearing, for its neighbours' only."""
+
+from __future__ import annotations
+
+from agent.runtime import RobotRuntime
+from copath.scenario import load_scenario
+from copath.wire.keys import Keys
+from copath.wire.messages import PeerEnvelope
+from sim.world import World
+from tests.conftest import config
+
+KEYS = Keys("barrier")
+NAME = "e5.4-six-robots-lemniscate-r1-lost"  # r1 listens to r4 and r3; it overhears r2, r5 and r6
+
+
+def _sent(scen) -> dict[str, dict[str, int]]:
+    """What each robot sent in one tick: one message to each neighbour (``Command.sent``)."""
+    return {r.name: {n: 1 for n in r.neighbours} for r in scen.robots}
+
+
+def _env(sender: str, stamp: float) -> PeerEnvelope:
+    return PeerEnvelope(sender, 1, stamp, "coord_state", [0.0, 0.0], {"s": 0.0, "sdot": 0.2, "s_d": 0.0})
+
+
+def test_with_the_filter_overhearing_a_robot_waits_for_every_robots_messages():
+    scen = load_scenario(config(NAME))
+    assert scen.safety.enabled and scen.safety.overhear and not scen.safety.acknowledge_plans
+    obs = World(scen).observe("r1", 1, _sent(scen))
+    # every message each of the others sent (r3 to r1 and r6, r5 to r2 and r6), not only r1's
+    assert obs.expect == {"r2": 1, "r3": 2, "r4": 1, "r5": 2, "r6": 2}
+    rt = RobotRuntime(scen, "r1", KEYS)
+    assert rt.awaits_overheard
+    assert rt.missing(obs.expect) == obs.expect  # nothing arrived: it waits for all five
+    for sender in ("r3", "r3", "r4", "r5", "r5", "r6", "r6"):  # r2's message is late
+        rt.overhear(_env(sender, 0.0))
+    assert rt.missing(obs.expect) == {"r2": 1}  # a non-neighbour's message is waited for
+    rt.overhear(_env("r2", 0.0))
+    assert rt.missing(obs.expect) == {}
+    # given up on (the barrier's timeout): written off, so the next tick waits for its own only
+    obs2 = World(scen).observe("r1", 2, {s: {n: 2 * c for n, c in d.items()} for s, d in _sent(scen).items()})
+    assert rt.write_off(obs2.expect, 0.2) == obs.expect
+    assert rt.missing(obs2.expect) == {}
+
+
+def test_without_overhearing_a_robot_waits_for_its_neighbours_messages_only():
+    scen = load_scenario(config(NAME)).with_overrides(safety={"overhear": False})
+    obs = World(scen).observe("r1", 1, _sent(scen))
+    assert obs.expect == {"r2": 0, "r3": 1, "r4": 1, "r5": 0, "r6": 0}  # those addressed to r1
+    rt = RobotRuntime(scen, "r1", KEYS)
+    assert not rt.awaits_overheard
+    rt.trust.advance(0.1)  # the first step's clock
+    assert rt.missing(obs.expect) == {"r3": 1, "r4": 1}
+    rt.receive(_env("r3", 0.0))
+    rt.receive(_env("r4", 0.0))
+    assert rt.missing(obs.expect) == {}

@@ -632,20 +632,12 @@ def awaits_overheard(cfg: SafetyConfig) -> bool:
     """Whether a lockstep robot waits for every message it overhears, not only its
     neighbours' (``Obs.expect`` then counts every message of each sender): whenever the
     safety filter is fed by overhearing. What the filter keeps out of, what the envelopes
-    acknowledge (:func:`acknowledged`) and when a robot finds another quiet or itself cut
+    acknowledge (``safety.acknowledge_plans``) and when a robot finds another quiet or itself cut
     off all depend on when an overheard envelope arrived; a barrier that waited only for the
     neighbours let one arrive a tick late now and then, and a lockstep run over Zenoh then
     left the in-process run (E5.4 with r1 quiet: r1 found itself cut off a tick later and
     held 2 cm further on; docs/reference/faults.md, "Overheard messages and the lockstep barrier")."""
     return bool(cfg.enabled and cfg.overhear)
-
-
-def acknowledged(cfg: SafetyConfig) -> bool:
-    """Whether robots acknowledge each other's committed plans (``safety.acknowledge_plans`` with
-    committed plans, overheard): then a lockstep robot waits for every message it overhears, as
-    its envelopes' acknowledgements depend on them (``Obs.expect`` counts every message of each
-    sender; docs/reference/safety.md, "Acknowledged plans")."""
-    return bool(cfg.enabled and cfg.overhear and cfg.commit_accel_mps2 is not None and cfg.acknowledge_plans)
 
 
 class SafetyFilter:

@@ -42,6 +42,10 @@ class World:
         self.models = {r.name: r.model for r in scenario.robots}
         self._every_message = awaits_overheard(scenario.safety)
         """The lockstep barrier counts every message of each sender (the safety filter overhears)."""
+        self._totals: tuple[int, dict[str, int]] = (-1, {})
+        """(tick, every message each robot had sent by then): with :attr:`_every_message` the
+        same for every robot's observation of the tick, so summed once a tick, not once a robot
+        (N^2 sums: 9.7 ms a tick at 128 robots, 0.2 ms summed once)."""
         n = len(self.names)
         self._P = np.array([r.pose for r in scenario.robots], dtype=float).reshape(n, 3)
         self.poses = {name: self._P[i] for i, name in enumerate(self.names)}  # row views
@@ -151,7 +155,10 @@ class World:
         expect = None
         if sent is not None:
             if self._every_message:  # the filter overhears: every message each robot sent
-                expect = {s: sum(int(v) for v in c.values()) for s, c in sent.items() if s != name}
+                if self._totals[0] != k:  # ``sent`` changes between ticks, never within one
+                    self._totals = (k, {s: sum(int(v) for v in c.values()) for s, c in sent.items()})
+                expect = dict(self._totals[1])
+                expect.pop(name, None)
             else:
                 expect = {s: int(c.get("*", 0)) + int(c.get(name, 0)) for s, c in sent.items() if s != name}
         return Obs(k, float(self.t), pose if type(pose) is list else [float(v) for v in pose], ranges, expect, meas)

@@ -2,11 +2,15 @@
 
 from __future__ import annotations
 
+import json
+
 import msgpack
 import pytest
 
+from copath.scenario import load_scenario
 from orchestrator.cli import main as copath
 from orchestrator.log.mcap import iter_raw
+from orchestrator.run.inprocess import run_scenario
 from tests.conftest import config
 
 pytestmark = [pytest.mark.fleet, pytest.mark.timeout(300)]
@@ -63,18 +67,12 @@ def test_a_lockstep_fleet_whose_filters_overhear_runs_the_in_process_run(tmp_pat
     (docs/reference/faults.md, "Overheard messages and the lockstep barrier"), so the processes
     run the in-process run key by key; when it waited for the neighbours' alone, 4 of 6 runs
     over Zenoh left it (2026-12-04: r4 up to 9 mm off at 20 s)."""
-    import json
-
-    from copath.scenario import load_scenario
-    from orchestrator.run.inprocess import run_scenario
-
     name = "e5.6-circle-swap-twelve-unicycles"
+    ref = run_scenario(load_scenario(config(name)), duration_s=20.0).metrics
     for i in range(2):
         out = tmp_path / f"run{i}"
         assert copath(["run", str(config(name)), "--out", str(out), "-q", "--duration", "20", "--no-plots"]) == 0
         m = json.loads((out / "metrics.json").read_text())
-        if i == 0:
-            ref = run_scenario(load_scenario(config(name)), duration_s=20.0).metrics
         assert m["fleet"]["min_separation_m"] == pytest.approx(ref["fleet"]["min_separation_m"], abs=1e-6)
         assert m["fleet"]["messages_published"] == m["fleet"]["messages_recorded"]
         for n, r in m["robots"].items():

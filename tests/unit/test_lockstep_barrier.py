@@ -27,9 +27,12 @@ def _env(sender: str, stamp: float) -> PeerEnvelope:
 def test_with_the_filter_overhearing_a_robot_waits_for_every_robots_messages():
     scen = load_scenario(config(NAME))
     assert scen.safety.enabled and scen.safety.overhear and not scen.safety.acknowledge_plans
-    obs = World(scen).observe("r1", 1, _sent(scen))
+    world = World(scen)
+    obs = world.observe("r1", 1, _sent(scen))
     # every message each of the others sent (r3 to r1 and r6, r5 to r2 and r6), not only r1's
     assert obs.expect == {"r2": 1, "r3": 2, "r4": 1, "r5": 2, "r6": 2}
+    # summed once a tick: the next robot's observation leaves out its own, not r1's
+    assert world.observe("r2", 1, _sent(scen)).expect == {"r1": 2, "r3": 2, "r4": 1, "r5": 2, "r6": 2}
     rt = RobotRuntime(scen, "r1", KEYS)
     assert rt.awaits_overheard
     assert rt.missing(obs.expect) == obs.expect  # nothing arrived: it waits for all five
@@ -39,7 +42,8 @@ def test_with_the_filter_overhearing_a_robot_waits_for_every_robots_messages():
     rt.overhear(_env("r2", 0.0))
     assert rt.missing(obs.expect) == {}
     # given up on (the barrier's timeout): written off, so the next tick waits for its own only
-    obs2 = World(scen).observe("r1", 2, {s: {n: 2 * c for n, c in d.items()} for s, d in _sent(scen).items()})
+    obs2 = world.observe("r1", 2, {s: {n: 2 * c for n, c in d.items()} for s, d in _sent(scen).items()})
+    assert obs2.expect == {s: 2 * c for s, c in obs.expect.items()}  # the next tick's sums, not the last
     assert rt.write_off(obs2.expect, 0.2) == obs.expect
     assert rt.missing(obs2.expect) == {}
 

@@ -19,6 +19,7 @@ import json
 
 import pytest
 
+from copath.wire.messages import Stats
 from orchestrator.log.mcap import read_log
 from orchestrator.testkit.hosts import DROP, run_across_hosts, stop_all, two_hosts, why_not
 
@@ -36,10 +37,15 @@ def assert_every_robot_and_no_loss(tmp_path, run_id: str, ticks: int) -> dict:
     # observations on their way to r2, for which it then neither steps nor publishes (the
     # simulator counts those ticks as missed). Measured: at most 5 records lost and 3 ticks
     # missed over 2 resets, the worst of 13 runs (2026-12-03; docs/reference/faults.md, "Across
-    # hosts"); the barrier writes off the peer messages lost with them.
+    # hosts"); the barrier writes off the peer messages lost with them. A stall long enough for
+    # r2's watchdog also has it publish a zero command and a watchdog event per trip while its
+    # session is down, lost with it too: 2026-12-04, one reset, r2's records of ticks 190-191
+    # (4) and of its watchdog (3) lost, 7 in all.
     resets = (tmp_path / "logs" / "r2.log").read_text().count("the simulator's liveliness token is back")
+    trips = next(r.counters for _, _, r in log.records
+                 if isinstance(r, Stats) and r.proc == "r2").get("watchdog_stops", 0)
     lost = m["fleet"]["messages_published"] - m["fleet"]["messages_recorded"]
-    assert lost == 0 if resets == 0 else 0 <= lost <= 6 * resets, (resets, m["fleet"])
+    assert lost == 0 if resets == 0 else 0 <= lost <= 6 * resets + 2 * trips, (resets, trips, m["fleet"])
     # a stall of run.watchdog_s (TCP backoff) makes an agent publish one zero command more
     events = [r for _, _, r in log.records if getattr(r, "TYPE", "") == "event"]
     watchdog = [r.source for r in events if r.what == "watchdog"]

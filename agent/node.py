@@ -154,15 +154,16 @@ class AgentNode:
                     self._arrived.notify()
 
     def _on_overheard_refused(self, key: str, error: str) -> None:
+        also_peer = self._also_peer_key(key)
+        if also_peer:  # the peer copy first (:meth:`_on_overheard_or_peer`)
+            self._on_peer_refused(key, error)
         if self._awaits_overheard:  # arrived, for a barrier that waits for every overheard message
             rel = relative_key(key)
             if len(rel) >= 3 and rel[0] == "peer":
                 self.overheard.append(_Refused(rel[1]))
-        if self._also_peer_key(key):
-            self._on_peer_refused(key, error)
-        elif self._awaits_overheard and not self.inline:
-            with self._arrived:
-                self._arrived.notify()
+            if not also_peer and not self.inline:
+                with self._arrived:
+                    self._arrived.notify()
 
     def _also_peer_key(self, key: str) -> bool:
         """Whether an overheard ``key`` also goes the peer way (:meth:`_on_peer`): a key this robot
@@ -187,9 +188,16 @@ class AgentNode:
                     self._arrived.notify()
 
     def _on_overheard_or_peer(self, key: str, rec) -> None:
-        self._on_overheard(key, rec)
+        """One message for both ways: the peer copy is queued before the overheard one, and
+        :meth:`_drain_peers` takes the overheard queue before the peer queue, so a message the
+        barrier has counted as overheard has its peer copy received in the same drain. In the
+        other order a step could count the overheard copy, find nothing missing and step while
+        the peer copy was still being queued: the controller got it a tick late (a lockstep E5.5
+        run with 100 ms delay left the in-process run at t = 0.1 s, CI 2026-12-04;
+        docs/reference/faults.md, "Overheard messages and the lockstep barrier")."""
         if self._also_peer_key(key):
             self._on_peer(key, rec)
+        self._on_overheard(key, rec)
 
     def _on_sim(self, key: str, rec) -> None:
         if isinstance(rec, Start):
@@ -317,18 +325,20 @@ class AgentNode:
         return dataclasses.replace(got[-1], meas=merged)
 
     def _drain_peers(self) -> None:
-        while self.peers:
-            env = self.peers.popleft()
-            if type(env) is _Refused:
-                self.rt.refused(env.sender)
-            else:
-                self.rt.receive(env)
+        """Hand what arrived to the runtime: the overheard queue first, then the peer queue
+        (the order :meth:`_on_overheard_or_peer` relies on; the link's threads append while this runs)."""
         while self.overheard:
             env = self.overheard.popleft()
             if type(env) is _Refused:
                 self.rt.overheard_refused(env.sender)
             else:
                 self.rt.overhear(env)
+        while self.peers:
+            env = self.peers.popleft()
+            if type(env) is _Refused:
+                self.rt.refused(env.sender)
+            else:
+                self.rt.receive(env)
 
     def _first_step(self, obs: Obs, now: float) -> None:
         """Say when this process first stepped; a robot that joined a run in progress also

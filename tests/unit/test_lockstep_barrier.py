@@ -4,9 +4,13 @@ neighbours' and the others', before it steps; without overhearing, for its neigh
 
 from __future__ import annotations
 
+import collections
+
+from agent.node import AgentNode
 from agent.runtime import RobotRuntime
 from copath.scenario import load_scenario
 from copath.wire.keys import Keys
+from copath.wire.link import MemoryBus, MemoryLink
 from copath.wire.messages import PeerEnvelope
 from sim.world import World
 from tests.conftest import config
@@ -59,3 +63,42 @@ def test_without_overhearing_a_robot_waits_for_its_neighbours_messages_only():
     rt.receive(_env("r3", 0.0))
     rt.receive(_env("r4", 0.0))
     assert rt.missing(obs.expect) == {}
+
+
+class _Interrupted(collections.deque):
+    """A node's queue whose every append is followed by a step's drain and barrier check, as
+    when the step thread runs between two appends of the link's thread."""
+
+    def __init__(self, on_append) -> None:
+        super().__init__()
+        self._on_append = on_append
+
+    def append(self, item) -> None:
+        super().append(item)
+        self._on_append()
+
+
+def test_a_message_counted_overheard_has_reached_the_inbox_in_the_same_drain():
+    """A message on a key both overheard and listened to arrives once and is queued twice, for
+    the filter and for the controller. The barrier counts the overheard copy; were the step
+    thread to drain between the two appends and find the overheard copy alone, it would step
+    without the message in the controller's inbox, which got it a tick late (CI 2026-12-04: a
+    lockstep E5.5 run with 100 ms delay left the in-process run at t = 0.1 s)."""
+    scen = load_scenario(config(NAME))
+    node = AgentNode(RobotRuntime(scen, "r1", KEYS), KEYS, MemoryLink(MemoryBus()), "lockstep")
+    node.start()
+    node.inline = False  # the link's threads append, the step thread drains (an agent process)
+    rt = node.rt
+    rt.trust.advance(0.0)
+    expect = {"r3": 1}
+    steps = []
+
+    def step_now() -> None:  # the step thread, at this instant
+        node._drain_peers()
+        if not rt.missing(expect):  # the barrier lets it step: the controller's copy must be in
+            steps.append(rt.counters.received)
+
+    node.peers, node.overheard = _Interrupted(step_now), _Interrupted(step_now)
+    node._on_overheard_or_peer(KEYS.peer_broadcast("r3"), _env("r3", 0.0))
+    assert steps and all(n == 1 for n in steps)
+    assert rt.overheard_from == {"r3": 1} and rt.received_from == {"r3": 1}

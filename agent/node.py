@@ -106,6 +106,8 @@ class AgentNode:
         """Observation times from which this robot's declared kills are due: the first
         observation after ``at_s`` (the one-process loop's tick, :func:`orchestrator.run.inprocess.run_scenario`)."""
         self._first_obs_t: float | None = None
+        self._down_from_obs = False
+        """Lockstep: the observations say who is down (``Obs.down``); the token watch is left alone."""
 
     # -- receive: one callback per record type (link threads, or inline) -------------
     def _kill_due(self, t: float) -> bool:
@@ -232,7 +234,9 @@ class AgentNode:
 
     def _on_robot_alive(self, key: str, alive: bool) -> None:
         name = key.rsplit("/", 1)[-1]
-        if name in self.rt.scenario.robot_names:
+        # in lockstep the simulator's observations say who is down (Obs.down), at the tick it
+        # applied the change; this watch, as it happens, would be a step early or late by chance
+        if name in self.rt.scenario.robot_names and not self._down_from_obs:
             self.rt.peer_alive(name, alive)
 
     def _watchdog(self) -> None:
@@ -383,6 +387,9 @@ class AgentNode:
             self._drain_peers()
         else:
             self._await_peers(obs)
+        if obs.down is not None:
+            self._down_from_obs = True
+            self.rt.tokens_down(obs.down)
         self._emit(self.rt.step(obs, obs.t))
         if not self._first_step_logged:
             self._first_step(obs, obs.t)

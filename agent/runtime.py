@@ -363,6 +363,13 @@ class RobotRuntime:
         """A robot's liveliness changed (its process died or froze, or it came back)."""
         self.liveness.peer_alive(name, alive)
 
+    def tokens_down(self, names) -> None:
+        """Lockstep: the robots lost at this tick as the simulator applied their tokens'
+        going (``Obs.down``), in place of this robot's own watch (:meth:`peer_alive`), so every
+        robot learns of a loss at the same step in one process and over Zenoh
+        (docs/reference/faults.md, "When the others learn of a loss")."""
+        self.liveness.tokens_down(names)
+
     def receive(self, env: PeerEnvelope) -> None:
         """Accept a peer envelope that arrived (before faults); one stamped outside the
         receiver's :class:`~copath.wire.trust.StampWindow` is rejected and counted."""

@@ -20,6 +20,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import logging
+import math
 import os
 import queue
 import sys
@@ -131,6 +132,12 @@ class SimNode:
         self.down: set[str] = set()
         """Robots gone under ``continue`` or ``restart``: held still, not waited for."""
         self._transitions: queue.Queue = queue.Queue()
+        dt = scenario.run.dt
+        self._declared = sorted((math.ceil((k.at_s + 0.5 * dt) / dt - 1e-9), k.robot) for k in scenario.run.kills
+                                ) if self.policy != "fail" and scenario.run.clock == "lockstep" else []
+        """Lockstep: the ticks at which the scenario's kills (``run.kills``) fall due, with their
+        robot: the first observation after ``at_s``, the one the robot's process dies on
+        (``agent/node.py``), and the tick the one-process loop closes its link before."""
         self._alive_cv = threading.Condition()
         self.missed = {n: 0 for n in self.names}
         self.stale = 0
@@ -209,6 +216,21 @@ class SimNode:
                 self._cmd_at[name] = float(self.world.t)  # the command timeout counts from its return
                 self._event("robot_rejoined", robot=name)
             elif not alive and name not in self.down:
+                self.down.add(name)
+                self.world.command(name, [0.0] * self.scenario.robot(name).model.command_size)
+                self._event("robot_lost", robot=name, policy=self.policy)
+
+    def _declared_kills(self, k: int) -> None:
+        """Lockstep: a robot whose kill falls due at tick ``k`` is down from this tick on, held
+        still and named in this tick's observations (``Obs.down``), as in one process, where the
+        loop closes its link between the ticks: its teammates learn of the loss at the same
+        step over Zenoh as there. Without it they learned a tick later, when its token went
+        after the process died on this tick's observation (docs/reference/faults.md, "When the
+        others learn of a loss"). Its token going afterwards changes nothing; a restart brings
+        it back as its token comes back."""
+        while self._declared and self._declared[0][0] <= k:
+            _, name = self._declared.pop(0)
+            if name not in self.down:
                 self.down.add(name)
                 self.world.command(name, [0.0] * self.scenario.robot(name).model.command_size)
                 self._event("robot_lost", robot=name, policy=self.policy)
@@ -325,9 +347,13 @@ class SimNode:
             reason = self._fault_windows(k * run.dt, (k + 1) * run.dt)
             if reason:
                 return k, False, reason
-            for n in self.names:
-                self.link.publish(self.keys.obs(n), self.world.observe(n, k, self.sent))
+            # token changes before the observations, which say them (Obs.down): every robot
+            # applies a loss at the tick the simulator applied it, in one process and over Zenoh
+            self._declared_kills(k)
             self._apply_transitions()
+            down = sorted(self.down)
+            for n in self.names:
+                self.link.publish(self.keys.obs(n), self.world.observe(n, k, self.sent, down))
             waiting = set(self.names) - self.down
             # a synchronous link has delivered every command by now: nothing to wait for
             deadline = time.monotonic() + (0.0 if self.synchronous else run.tick_timeout_s)

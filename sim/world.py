@@ -125,9 +125,11 @@ class World:
         t = self.t if t is None else t
         return [o.at(t) for o in self._obstacles]
 
-    def observe(self, name: str, k: int, sent: dict[str, dict[str, int]] | None = None) -> Obs:
+    def observe(self, name: str, k: int, sent: dict[str, dict[str, int]] | None = None,
+                down: list[str] | None = None) -> Obs:
         """Observation of robot ``name`` at tick k; ``sent`` (each robot's latest
-        ``Command.sent``) gives the lockstep barrier of peer messages to wait for."""
+        ``Command.sent``) gives the lockstep barrier of peer messages to wait for, ``down`` the
+        robots whose token the simulator holds gone (lockstep, ``Obs.down``)."""
         meas = None
         if name in self.sensing:
             pose, meas = self.sensing[name].read(self.t)
@@ -161,7 +163,7 @@ class World:
                 expect.pop(name, None)
             else:
                 expect = {s: int(c.get("*", 0)) + int(c.get(name, 0)) for s, c in sent.items() if s != name}
-        return Obs(k, float(self.t), pose if type(pose) is list else [float(v) for v in pose], ranges, expect, meas)
+        return Obs(k, float(self.t), pose if type(pose) is list else [float(v) for v in pose], ranges, expect, meas, down)
 
     def truth(self, k: int) -> Truth:
         clearance = None

@@ -86,6 +86,11 @@ class LivenessStage:
         if name != self.robot:
             self.lost = self.lost - {name} if alive else self.lost | {name}  # replaced whole: thread-safe read
 
+    def tokens_down(self, names: Iterable[str]) -> None:
+        """Lockstep: the robots whose token is gone at this tick, as the simulator's observation
+        says it (``Obs.down``): the lost set is replaced by it."""
+        self.lost = frozenset(n for n in names if n != self.robot)
+
     def heard(self, senders: Iterable[str], now: float) -> None:
         """Senders whose envelopes the fault layer released at ``now`` (the watched ones count)."""
         watched = self._watched

@@ -112,6 +112,7 @@ _CHECKS = {
     "floats?": lambda v: v is None or _CHECKS["floats"](v),
     "float?": lambda v: v is None or _CHECKS["float"](v),
     "strs": lambda v: isinstance(v, list) and all(isinstance(e, str) for e in v),
+    "strs?": lambda v: v is None or _CHECKS["strs"](v),
     "bools": lambda v: isinstance(v, list) and all(isinstance(e, bool) for e in v),
     "matrix": lambda v: isinstance(v, list) and all(_CHECKS["floats"](e) for e in v),
     "distances?": lambda v: v is None or (isinstance(v, list) and all(_distance(e) for e in v)),
@@ -241,7 +242,7 @@ class Obs(_Record):
 
     TYPE: ClassVar[str] = "obs"
     FIELDS: ClassVar[dict[str, str]] = {"k": "int", "t": "float", "pose": "floats", "ranges": "distances?",
-                                        "expect": "counts?", "meas": "dict?"}
+                                        "expect": "counts?", "meas": "dict?", "down": "strs?"}
     k: int
     t: float
     pose: list[float]
@@ -255,12 +256,20 @@ class Obs(_Record):
     """Measurements delivered since the previous observation (None: ideal sensing):
     ``odom`` [[t0, t1, u...]] measured body velocities held over [t0, t1];
     ``fixes`` [[t_taken, x, y]]; ``headings`` [[t_taken, theta]] (sim/sensing.py)."""
+    down: list[str] | None = None
+    """Lockstep: the robots whose liveliness token is gone at tick k as the simulator applies it
+    (a process died, froze or was killed by ``run.kills``; back when its token is): every robot
+    takes token losses from here, at the tick the simulator applied them, as the barrier
+    sequences messages (docs/reference/faults.md, "When the others learn of a loss").
+    None in realtime, where each robot's own liveliness watch says it as it happens."""
 
     _MEAS_WIDTH: ClassVar[dict[str, tuple[int, ...]]] = {"odom": (4, 5), "fixes": (3,), "headings": (2,)}
 
     def _ordered(self, d: dict[str, Any]) -> dict[str, Any]:
         if d["expect"] is not None:  # sender order, not arrival order: equal runs give equal bytes
             d["expect"] = dict(sorted(d["expect"].items()))
+        if d["down"] is not None:
+            d["down"] = sorted(d["down"])
         return d
 
     @classmethod
@@ -507,6 +516,7 @@ _FAST_TYPES: dict[str, Any] = {
     "floats?": Optional[list[_FINITE]],
     "float?": Optional[_FINITE],
     "strs": list[str],
+    "strs?": Optional[list[str]],
     "bools": list[bool],
     "matrix": list[list[_FINITE]],
     "distances?": Optional[list[_DISTANCE]],

@@ -54,10 +54,16 @@ def test_a_declared_kill_takes_the_robot_s_process_at_its_time_over_zenoh(tmp_pa
     assert m["fleet"]["messages_published"] == m["fleet"]["messages_recorded"]
     # the live robots went round the held r1 (the detour stage) and were graded without it
     assert all(m["robots"][n]["detours"] >= 1 for n in ("r2", "r3"))
-    if clock == "lockstep":  # the same tick as in one process: r1 stopped where it stopped there
+    if clock == "lockstep":  # the same tick as in one process, and the others learn of it at the same step
+        # (Obs.down; docs/reference/faults.md, "When the others learn of a loss"): the same run, robot by robot
         scen = api.load(config(SCENARIO), overrides=SHORT)
         inproc = run_scenario(scen).metrics
-        assert m["robots"]["r1"]["path_progress_m"] == inproc["robots"]["r1"]["path_progress_m"]
+        for n, r in m["robots"].items():
+            assert r["path_progress_m"] == inproc["robots"][n]["path_progress_m"], n
+        assert m["fleet"]["min_separation_m"] == inproc["fleet"]["min_separation_m"]
+        told = sorted((e.source, round(e.t, 2)) for _, _, e in records
+                      if getattr(e, "TYPE", "") == "event" and e.what == "peer_lost" and e.detail.get("robot") == "r1")
+        assert told == [(n, 10.1) for n in ("r2", "r3", "r4", "r5", "r6")]  # 10.2 s before Obs.down
 
 
 @pytest.mark.fleet

@@ -1,0 +1,63 @@
+"""``Obs.down`` (docs/reference/faults.md, "When the others learn of a loss"): in lockstep the
+simulator's observations name the robots whose token is gone at that tick, a declared kill from
+the tick it falls due; every robot takes its losses from them, not from its own token watch, so
+its teammates learn of a kill at the same step in one process and over Zenoh."""
+
+from __future__ import annotations
+
+from agent.node import AgentNode
+from agent.runtime import RobotRuntime
+from copath.wire.keys import Keys
+from copath.wire.link import MemoryBus, MemoryLink
+from copath.wire.messages import Obs
+from orchestrator import api
+from orchestrator.run.inprocess import run_scenario
+from sim.world import World
+from tests.conftest import config
+
+SCENARIO = "e5.4-six-robots-lemniscate-r1-killed"  # r1 killed at 10 s
+KEYS = Keys("down")
+
+
+def _obs(records, robot: str) -> dict[int, Obs]:
+    return {r.k: r for _, key, r in records if isinstance(r, Obs) and key.endswith(f"/robot/{robot}/obs")}
+
+
+def _told(records, what: str) -> list[tuple[str, float]]:
+    return sorted((e.source, round(e.t, 2)) for _, _, e in records
+                  if getattr(e, "TYPE", "") == "event" and e.what == what and e.detail.get("robot") == "r1")
+
+
+def test_a_declared_kill_is_said_in_the_observations_of_the_tick_it_falls_due():
+    res = run_scenario(api.load(config(SCENARIO), overrides=["run.duration_s=11", "run.settle_s=1"]))
+    for robot in ("r2", "r6"):
+        obs = _obs(res.records, robot)
+        assert [obs[k].down for k in (0, 100, 101, 109)] == [[], [], ["r1"], ["r1"]]
+    assert 100 in _obs(res.records, "r1") and 101 in _obs(res.records, "r1")  # it dies on observation 101
+    # every teammate learns of it at its step of tick 101, the step r1 no longer takes
+    assert _told(res.records, "peer_lost") == [(n, 10.1) for n in ("r2", "r3", "r4", "r5", "r6")]
+
+
+def test_a_restarted_robot_is_down_until_its_token_is_back():
+    scen = api.load(config(SCENARIO), overrides=["run.duration_s=10", "run.settle_s=1", 'run.on_robot_failure="restart"',
+                                                 'run.kills=[{robot="r1", at_s=8.0}]'])
+    res = run_scenario(scen)
+    obs = _obs(res.records, "r2")
+    assert [obs[k].down for k in (80, 81, 90, 91)] == [[], ["r1"], ["r1"], []]
+    assert _told(res.records, "peer_lost") == [(n, 8.1) for n in ("r2", "r3", "r4", "r5", "r6")]
+    assert _told(res.records, "peer_rejoined") == [(n, 9.1) for n in ("r2", "r3", "r4", "r5", "r6")]
+
+
+def test_a_lockstep_robot_takes_its_losses_from_the_observations_and_a_realtime_one_from_its_watch():
+    scen = api.load(config(SCENARIO))
+    node = AgentNode(RobotRuntime(scen, "r2", KEYS), KEYS, MemoryLink(MemoryBus()), "lockstep")
+    node._on_robot_alive(KEYS.alive("r3"), False)  # before any observation: its watch
+    assert node.rt.lost == {"r3"}
+    node._lockstep_step(World(scen).observe("r2", 0, {}, ["r1"]))
+    assert node.rt.lost == {"r1"}
+    node._on_robot_alive(KEYS.alive("r4"), False)  # said by the next observation, not now
+    assert node.rt.lost == {"r1"}
+    live = AgentNode(RobotRuntime(scen, "r2", KEYS), KEYS, MemoryLink(MemoryBus()), "realtime")
+    live._on_robot_alive(KEYS.alive("r4"), False)
+    assert live.rt.lost == {"r4"}
+    assert World(scen).observe("r2", 0).down is None  # realtime observations say nothing of it

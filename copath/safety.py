@@ -1650,8 +1650,9 @@ class SafetyGuard:
         """A robot lost (its liveliness token went), which the simulator holds still from then on,
         as a static obstacle (docs/reference/safety.md, "A lost robot"): it drove on, within the discs of
         :meth:`_neighbour`, from its last stamp until it was held, at most one control period
-        after this robot learnt of the loss (the simulator and this robot learn of it from the
-        same token, each at its own next tick), and has not moved since. One disc covers all of
+        after this robot learnt of the loss (in realtime the simulator and this robot learn of it
+        from the same token, each at its own next tick; in lockstep the robot learns of it from
+        the observation of the tick the simulator held it, ``Obs.down``), and has not moved since. One disc covers all of
         those: centred half-way along the path of their centres, with half that path's length
         plus the largest of their radii (the last). Its centre is known and it does not move, so
         it is kept out of with the whole gap (as a committed disc at rest), without the

@@ -367,8 +367,9 @@ class RobotRuntime:
         """Lockstep: the robots lost at this tick as the simulator applied their tokens'
         going (``Obs.down``), in place of this robot's own watch (:meth:`peer_alive`), so every
         robot learns of a loss at the same step in one process and over Zenoh
-        (docs/reference/faults.md, "When the others learn of a loss")."""
-        self.liveness.tokens_down(names)
+        (docs/reference/faults.md, "When the others learn of a loss"). Names outside the team
+        are left out, as the token watch leaves them."""
+        self.liveness.tokens_down(n for n in names if n in self._team)
 
     def receive(self, env: PeerEnvelope) -> None:
         """Accept a peer envelope that arrived (before faults); one stamped outside the

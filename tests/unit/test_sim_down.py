@@ -57,6 +57,8 @@ def test_a_lockstep_robot_takes_its_losses_from_the_observations_and_a_realtime_
     assert node.rt.lost == {"r1"}
     node._on_robot_alive(KEYS.alive("r4"), False)  # said by the next observation, not now
     assert node.rt.lost == {"r1"}
+    node._lockstep_step(World(scen).observe("r2", 1, {}, ["r1", "r2", "stranger"]))
+    assert node.rt.lost == {"r1"}  # itself and a name outside the team left out
     live = AgentNode(RobotRuntime(scen, "r2", KEYS), KEYS, MemoryLink(MemoryBus()), "realtime")
     live._on_robot_alive(KEYS.alive("r4"), False)
     assert live.rt.lost == {"r4"}

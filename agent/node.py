@@ -117,6 +117,14 @@ class AgentNode:
             self._first_obs_t = t
         return any(self._first_obs_t < due <= t for due in self._kills)
 
+    def _kill_by(self, t: float) -> float | None:
+        """Realtime: the run time of a declared kill due by run time ``t`` (the earliest), for a
+        process that was running before it; None if there is none."""
+        if self._first_obs_t is None:
+            return None
+        due = [d for d in self._kills if self._first_obs_t < d <= t]
+        return min(due) if due else None
+
     def _on_obs(self, key: str, rec) -> None:
         if isinstance(rec, Obs):
             if self._kills and self._kill_due(rec.t):
@@ -474,6 +482,15 @@ class AgentNode:
                     if not self._first_step_logged:
                         self._first_step(obs, now)
                 next_t += period
+                due = self._kill_by(next_t - self.wall_t0) if self._kills else None
+                if due is not None:
+                    # a declared kill falls due before the next step: die at its time on the run's
+                    # clock (at_s + dt/2), between the steps as in lockstep, not on the observation
+                    # after it, a period late (docs/reference/faults.md, "A kill declared in the scenario")
+                    if not self.ended.wait(timeout=max(0.0, self.wall_t0 + due - time.time())):
+                        logger.warning("robot %s: killed at run time %.2f s (run.kills)", self.rt.name,
+                                       time.time() - self.wall_t0)
+                        self._die()  # SIGKILL: nothing after it runs
                 sleep = next_t - time.time()
                 if sleep > 0:
                     self.ended.wait(timeout=sleep)

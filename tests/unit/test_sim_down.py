@@ -63,3 +63,17 @@ def test_a_lockstep_robot_takes_its_losses_from_the_observations_and_a_realtime_
     live._on_robot_alive(KEYS.alive("r4"), False)
     assert live.rt.lost == {"r4"}
     assert World(scen).observe("r2", 0).down is None  # realtime observations say nothing of it
+
+
+def test_a_realtime_robot_dies_at_its_declared_kill_on_the_run_s_clock():
+    """Between its steps at ``at_s + dt/2``, not on the observation after (a period late); a
+    process that began after a kill's time is not killed by it (a restart)."""
+    scen = api.load(config(SCENARIO))  # r1 killed at 10 s, dt 0.1
+    died = []
+    node = AgentNode(RobotRuntime(scen, "r1", KEYS), KEYS, MemoryLink(MemoryBus()), "realtime", die=lambda: died.append(1))
+    assert node._kill_by(10.0) is None  # no observation yet: not running
+    node._kill_due(0.0)  # its first observation
+    assert node._kill_by(10.0) is None and node._kill_by(10.1) == 10.05
+    back = AgentNode(RobotRuntime(scen, "r1", KEYS), KEYS, MemoryLink(MemoryBus()), "realtime", die=lambda: died.append(1))
+    back._kill_due(11.1)  # a restart's first observation
+    assert back._kill_by(80.0) is None and not died

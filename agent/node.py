@@ -102,7 +102,7 @@ class AgentNode:
         self._first_step_logged = False
         self._die = die
         run = runtime.scenario.run
-        self._kills = sorted(k.at_s + 0.5 * run.dt for k in run.kills if k.robot == runtime.name) if die else []
+        self._kills = sorted(k.due_s(run.dt) for k in run.kills if k.robot == runtime.name) if die else []
         """Observation times from which this robot's declared kills are due: the first
         observation after ``at_s`` (the one-process loop's tick, :func:`orchestrator.run.inprocess.run_scenario`)."""
         self._first_obs_t: float | None = None
@@ -115,7 +115,7 @@ class AgentNode:
         before it (a process restarted after a kill is not killed by it again, only by a later one)."""
         if self._first_obs_t is None:
             self._first_obs_t = t
-        return any(self._first_obs_t < due <= t for due in self._kills)
+        return self._kill_by(t) is not None
 
     def _kill_by(self, t: float) -> float | None:
         """Realtime: the run time of a declared kill due by run time ``t`` (the earliest), for a

@@ -69,6 +69,7 @@ __all__ = [
     "Scenario",
     "RunConfig",
     "Kill",
+    "kill_tick",
     "NetworkConfig",
     "NoiseConfig",
     "SensorConfig",
@@ -101,6 +102,19 @@ class Kill:
     """The killed robot's name."""
     at_s: float
     """When [s] (> 0, simulated time)."""
+
+    def due_s(self, dt: float) -> float:
+        """The run time [s] the kill falls due: half a period after ``at_s``, so that the robot's
+        step at ``at_s`` (on the tick grid) is its last."""
+        return self.at_s + 0.5 * dt
+
+
+def kill_tick(at_s: float, dt: float) -> int:
+    """The first tick whose observation comes at or after a kill at ``at_s`` falls due
+    (:meth:`Kill.due_s`): the one its process dies on over Zenoh and the one its teammates learn
+    of the loss at (``Obs.down``); in one process its link closes just before it. The one place
+    that says it, for the agent, the simulator and the one-process loop alike."""
+    return math.ceil((at_s + 0.5 * dt) / dt - 1e-9)
 
 
 @dataclass(frozen=True)

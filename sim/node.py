@@ -20,7 +20,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import logging
-import math
 import os
 import queue
 import sys
@@ -31,7 +30,7 @@ from typing import Callable, Mapping
 import numpy as np
 
 from copath.occupancy import LastFormationWatch, TaskQueue, formations, queues_from_json, task_tolerance
-from copath.scenario import ConfigError, Scenario, load_scenario
+from copath.scenario import ConfigError, Scenario, kill_tick, load_scenario
 from copath.wire.cli import add_config_arguments, session_config_from_args
 from copath.wire.faults import silence_outages, windows_between
 from copath.wire.keys import Keys
@@ -132,12 +131,10 @@ class SimNode:
         self.down: set[str] = set()
         """Robots gone under ``continue`` or ``restart``: held still, not waited for."""
         self._transitions: queue.Queue = queue.Queue()
-        dt = scenario.run.dt
-        self._declared = sorted((math.ceil((k.at_s + 0.5 * dt) / dt - 1e-9), k.robot) for k in scenario.run.kills
+        self._declared = sorted((kill_tick(k.at_s, scenario.run.dt), k.robot) for k in scenario.run.kills
                                 ) if self.policy != "fail" and scenario.run.clock == "lockstep" else []
         """Lockstep: the ticks at which the scenario's kills (``run.kills``) fall due, with their
-        robot: the first observation after ``at_s``, the one the robot's process dies on
-        (``agent/node.py``), and the tick the one-process loop closes its link before."""
+        robot (:func:`copath.scenario.kill_tick`)."""
         self._alive_cv = threading.Condition()
         self.missed = {n: 0 for n in self.names}
         self.stale = 0
@@ -226,14 +223,11 @@ class SimNode:
         loop closes its link between the ticks: its teammates learn of the loss at the same
         step over Zenoh as there. Without it they learned a tick later, when its token went
         after the process died on this tick's observation (docs/reference/faults.md, "When the
-        others learn of a loss"). Its token going afterwards changes nothing; a restart brings
-        it back as its token comes back."""
+        others learn of a loss"). It is the token's going known ahead, queued as such for
+        :meth:`_apply_transitions`: the token's own going afterwards changes nothing, a restart
+        brings it back as its token comes back."""
         while self._declared and self._declared[0][0] <= k:
-            _, name = self._declared.pop(0)
-            if name not in self.down:
-                self.down.add(name)
-                self.world.command(name, [0.0] * self.scenario.robot(name).model.command_size)
-                self._event("robot_lost", robot=name, policy=self.policy)
+            self._transitions.put((self._declared.pop(0)[1], False))
 
     def _stop_stale(self, t: float) -> None:
         """Realtime: a robot whose base has had no command for ``run.command_timeout_s`` stops,

@@ -29,7 +29,7 @@ from typing import Any, Callable, Mapping, TextIO
 from agent.controllers import task_queues
 from agent.node import AgentNode
 from agent.runtime import RobotRuntime
-from copath.scenario import Scenario
+from copath.scenario import Scenario, kill_tick
 from copath.wire.acl import AccessPolicy
 from copath.wire.keys import Keys
 from copath.wire.link import MemoryBus
@@ -108,7 +108,8 @@ def run_scenario(scenario: Scenario, duration_s: float | None = None, run_id: st
     declared = [(k.robot, k.at_s) for k in scenario.run.kills]
     back = [(n, t + RESTART_AFTER_S) for n, t in declared] if scenario.run.on_robot_failure == "restart" else []
     declared += [(n, t) for n, ts in (kills or {}).items() for t in _times(ts)]
-    faults = sorted([(round(t / dt), 0, n) for n, t in dict.fromkeys(declared)]
+    # a kill's link closes after the tick before the one it falls due at (copath.scenario.kill_tick)
+    faults = sorted([(kill_tick(t, dt) - 1, 0, n) for n, t in dict.fromkeys(declared)]
                     + [(round(t / dt), 1, n) for n, t in back]
                     + [(round(t / dt), 1, n) for n, ts in (restarts or {}).items() for t in _times(ts)])
     current = dict(agents)  # each robot's newest process

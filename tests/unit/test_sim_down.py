@@ -23,6 +23,10 @@ def _obs(records, robot: str) -> dict[int, Obs]:
     return {r.k: r for _, key, r in records if isinstance(r, Obs) and key.endswith(f"/robot/{robot}/obs")}
 
 
+def _sim_events(records, what: str) -> list:
+    return [r for _, _, r in records if getattr(r, "TYPE", "") == "event" and r.source == "sim" and r.what == what]
+
+
 def _told(records, what: str) -> list[tuple[str, float]]:
     return sorted((e.source, round(e.t, 2)) for _, _, e in records
                   if getattr(e, "TYPE", "") == "event" and e.what == what and e.detail.get("robot") == "r1")
@@ -69,11 +73,27 @@ def test_a_realtime_robot_dies_at_its_declared_kill_on_the_run_s_clock():
     """Between its steps at ``at_s + dt/2``, not on the observation after (a period late); a
     process that began after a kill's time is not killed by it (a restart)."""
     scen = api.load(config(SCENARIO))  # r1 killed at 10 s, dt 0.1
-    died = []
-    node = AgentNode(RobotRuntime(scen, "r1", KEYS), KEYS, MemoryLink(MemoryBus()), "realtime", die=lambda: died.append(1))
+    node = AgentNode(RobotRuntime(scen, "r1", KEYS), KEYS, MemoryLink(MemoryBus()), "realtime", die=lambda: None)
     assert node._kill_by(10.0) is None  # no observation yet: not running
-    node._kill_due(0.0)  # its first observation
+    assert not node._kill_due(0.0)  # its first observation
     assert node._kill_by(10.0) is None and node._kill_by(10.1) == 10.05
-    back = AgentNode(RobotRuntime(scen, "r1", KEYS), KEYS, MemoryLink(MemoryBus()), "realtime", die=lambda: died.append(1))
-    back._kill_due(11.1)  # a restart's first observation
-    assert back._kill_by(80.0) is None and not died
+    back = AgentNode(RobotRuntime(scen, "r1", KEYS), KEYS, MemoryLink(MemoryBus()), "realtime", die=lambda: None)
+    assert not back._kill_due(11.1)  # a restart's first observation, after the kill
+    assert back._kill_by(80.0) is None
+
+
+def test_a_kill_falls_due_on_the_same_tick_for_the_agent_the_simulator_and_the_one_process_loop():
+    """``kill_tick``: the first tick whose observation comes at or after ``at_s + dt/2``. The
+    one-process loop closed a kill's link after tick ``round(at_s / dt)``, which rounds half to
+    even: a kill at 10.15 s fell at tick 103 there and at 102 over Zenoh."""
+    from copath.scenario import Kill, kill_tick  # noqa: PLC0415
+
+    for at_s, tick in ((10.0, 101), (10.03, 101), (10.06, 102), (10.05, 101), (10.15, 102), (0.01, 1)):
+        assert kill_tick(at_s, 0.1) == tick, at_s
+        due = Kill("r1", at_s).due_s(0.1)
+        assert (tick - 1) * 0.1 < due - 1e-9 and tick * 0.1 >= due - 1e-9  # the agent's test, the same tick
+    res = run_scenario(api.load(config(SCENARIO), overrides=["run.duration_s=10.6", "run.settle_s=1",
+                                                             'run.kills=[{robot="r1", at_s=10.15}]']))
+    assert [round(r.t, 2) for r in _sim_events(res.records, "robot_lost")] == [10.2]
+    last = max(r.k for _, key, r in res.records if getattr(r, "TYPE", "") == "cmd" and key.endswith("/robot/r1/cmd"))
+    assert last == 101  # it answered observation 101 and no later one
